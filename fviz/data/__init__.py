@@ -1,0 +1,5 @@
+"""Data sources: everything produces a :class:`fviz.data.pair.Pair`."""
+
+from fviz.data.pair import Pair, PairId
+
+__all__ = ["Pair", "PairId"]

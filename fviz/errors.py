@@ -1,0 +1,7 @@
+"""The one error type users see: a one-line message naming the file or field at fault."""
+
+
+class FvizError(Exception):
+    """A usage or data error. The CLI prints ``error: <message>`` and exits with code 2."""
+
+    exit_code = 2

@@ -1,0 +1,55 @@
+"""What an estimator is: a callable from a pair and its matches to an F.
+
+    estimate(pair, x_a, x_b) -> F  or  (F, inlier_mask)
+
+pair: :class:`fviz.data.Pair`; x_a, x_b: (M, 2) matched pixel coordinates (x_b^T F x_a = 0);
+F: (3, 3); inlier_mask: (M,) bool, or None when the method has no notion of inliers.
+Correspondence-free (deep) estimators read ``pair.image_a`` / ``pair.image_b`` and ignore the matches.
+The runner (:func:`fviz.estimators.run_estimator`) times the call and turns exceptions and
+invalid (NaN, zero) matrices into an :class:`Estimate` with ``error`` set.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+
+EstimateFn = Callable[..., Any]
+
+
+@dataclass
+class Estimate:
+    name: str
+    F: np.ndarray | None
+    inliers: np.ndarray | None
+    seconds: float
+    error: str | None = None
+    info: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def ok(self) -> bool:
+        return self.error is None
+
+
+def run_estimator(name: str, fn: EstimateFn, pair, x_a: np.ndarray, x_b: np.ndarray) -> Estimate:
+    """Call one estimator, never raising: failures come back as ``Estimate.error``."""
+    from fviz.geometry import is_valid
+
+    t0 = time.perf_counter()
+    try:
+        out = fn(pair, x_a, x_b)
+    except Exception as exc:  # an estimator failing must not stop the others
+        return Estimate(name, None, None, time.perf_counter() - t0, f"{type(exc).__name__}: {exc}")
+    seconds = time.perf_counter() - t0
+    F, mask = out if isinstance(out, tuple) else (out, None)
+    F = np.asarray(F, dtype=np.float64) if F is not None else None
+    if F is None or F.shape != (3, 3) or not is_valid(F):
+        return Estimate(name, None, None, seconds, "returned no valid 3x3 F (None, NaN or all zero)")
+    if mask is not None:
+        mask = np.asarray(mask, dtype=bool).reshape(-1)
+        if mask.shape[0] != x_a.shape[0]:
+            mask = None
+    return Estimate(name, F, mask, seconds)

@@ -1,0 +1,31 @@
+"""Geometry floor of fviz: pure numpy, imports nothing else of fviz but its error type."""
+
+from fviz.geometry.epipolar import (
+    Epipole,
+    border_point,
+    clip_lines,
+    describe_epipole,
+    epipoles,
+    homogeneous,
+    lines_in_a,
+    lines_in_b,
+)
+from fviz.geometry.fundamental import (
+    NORMS,
+    NormalizationError,
+    enforce_rank2,
+    f_distance,
+    fundamental_from_motion,
+    fundamental_from_projections,
+    is_valid,
+    normalize,
+    skew,
+)
+from fviz.geometry.residuals import algebraic, sampson_distance, symmetric_epipolar_distance
+
+__all__ = [
+    "NORMS", "Epipole", "NormalizationError", "algebraic", "border_point", "clip_lines", "describe_epipole",
+    "enforce_rank2", "epipoles", "f_distance", "fundamental_from_motion", "fundamental_from_projections",
+    "homogeneous", "is_valid", "lines_in_a", "lines_in_b", "normalize", "sampson_distance", "skew",
+    "symmetric_epipolar_distance",
+]
