@@ -1,0 +1,119 @@
+"""``fviz inspect pair``: one pair, every estimator, one recording (and ``--json``)."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+
+from fviz.cli import options as o
+
+
+def load_pair(kitti_root, sequence, drive, frame, pair_kind, step, cams, synthetic: bool, seed: int):
+    """The selected pair (KITTI or synthetic)."""
+    if synthetic:
+        from fviz.data.synthetic import SceneConfig, synthetic_pair
+
+        return synthetic_pair(seed, SceneConfig(stereo=pair_kind == "stereo"))
+    from fviz.data.kitti import open_dataset
+
+    ds = open_dataset(o.kitti_root(kitti_root), sequence, drive)
+    return ds.pair(frame, pair_kind, step, o.parse_cams(cams))
+
+
+def default_out(name: str) -> Path:
+    return Path("runs") / (name.replace("/", "_") + ".rrd")
+
+
+def pair(
+    kitti_root: o.KittiRoot = None,
+    sequence: o.Sequence_ = None,
+    drive: o.Drive = None,
+    frame: Annotated[int, typer.Option("--frame", help="Frame of image a.")] = 0,
+    pair_kind: o.PairKind = "stereo",
+    step: o.Step = 1,
+    cams: o.Cams = None,
+    estimator: o.Estimators = None,
+    features: o.Features = "sift",
+    max_keypoints: o.MaxKeypoints = 2000,
+    ratio: o.Ratio = 0.8,
+    mutual: o.Mutual = True,
+    threshold: o.Threshold = 1.0,
+    confidence: o.Confidence = 0.999,
+    max_iters: o.MaxIters = 10000,
+    seed: o.Seed = 0,
+    norm: o.Norm = "fbn",
+    eval_threshold: o.EvalThreshold = 2.0,
+    lines: Annotated[int, typer.Option("--lines", help="Epipolar lines drawn per F (a fixed random subset of matches).")] = 30,
+    out: Annotated[Optional[Path], typer.Option("--out", help="Recording to write (default runs/<pair>.rrd).")] = None,
+    as_json: Annotated[bool, typer.Option("--json", help="Print the result as JSON on stdout.")] = False,
+    spawn: Annotated[bool, typer.Option("--spawn", help="Open the native Rerun viewer on the recording.")] = False,
+    web: Annotated[bool, typer.Option("--web", help="Serve the web viewer on 127.0.0.1 and print its URL.")] = False,
+    synthetic: o.Synthetic = False,
+) -> None:
+    """Run estimators on one pair and record images, keypoints, epipolar lines, epipoles, residuals and metrics."""
+    from fviz.errors import FvizError
+    from fviz.estimators.registry import DEFAULT_ESTIMATORS
+    from fviz.evaluate import MIN_MATCHES, evaluate_pair
+    from fviz.record.writer import write_pair_recording
+
+    opts = o.EstimatorOptions(tuple(estimator or DEFAULT_ESTIMATORS), features, max_keypoints, ratio, mutual,
+                              threshold, confidence, max_iters, seed)
+    if lines < 0:
+        raise FvizError(f"--lines {lines}: must be >= 0")
+    ests = opts.estimators()
+    p = load_pair(kitti_root, sequence, drive, frame, pair_kind, step, cams, synthetic, seed)
+    result = evaluate_pair(p, ests, opts.feature_config(), norm, eval_threshold, threshold)
+    path = write_pair_recording(out or default_out(p.id.name), p, result, lines)
+    doc = result.to_dict()
+    doc["recording"] = str(path)
+    if as_json:
+        json.dump(doc, sys.stdout, indent=2)
+        sys.stdout.write("\n")
+    else:
+        _print_table(result, path)
+    for line in result.errors:
+        print(f"error: estimator {line}", file=sys.stderr)
+    if spawn:
+        from fviz.viewer import spawn_native
+
+        spawn_native(path)
+    if web:
+        from fviz.viewer import serve_web
+
+        serve_web(path)
+    if result.n_matches < MIN_MATCHES:
+        raise FvizError(
+            f"only {result.n_matches} matches between {p.extra.get('path_a', 'image a')} and "
+            f"{p.extra.get('path_b', 'image b')} ({MIN_MATCHES} needed); recorded in {path}"
+        )
+    if result.errors:
+        raise typer.Exit(1)
+
+
+def _print_table(result, path: Path) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    cols = ("epi_abs", "epi_sqr", "sed_median", "sampson_median", "inlier_ratio", "f_dist", "epipole_err_deg")
+    t = Table(title=f"{result.pair['name']}  ({result.n_matches} matches, {result.n_eval} for evaluation; "
+                    f"EPI means under {result.norm.upper()})")
+    t.add_column("estimator")
+    for c in cols:
+        t.add_column(c, justify="right")
+    t.add_column("s", justify="right")
+    for r in result.estimators:
+        if r.error:
+            t.add_row(r.name, f"[red]failed: {r.error}[/red]", *[""] * (len(cols) - 1), "")
+        else:
+            t.add_row(r.name, *(f"{r.metrics[c]:.4g}" for c in cols), f"{r.seconds:.3f}")
+    console = Console(width=max(Console().width, 130))
+    console.print(t)
+    console.print(f"recording: {path}")
+
+
+def register(app: typer.Typer) -> None:
+    app.command("pair")(pair)

@@ -1,0 +1,82 @@
+"""Options shared by the commands that select pairs and run estimators (inspect, eval, triage)."""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+
+from fviz.errors import FvizError
+
+KITTI_ROOT_ENV = "FVIZ_KITTI_ROOT"
+
+KittiRoot = Annotated[Optional[Path], typer.Option("--kitti-root", help=f"KITTI folder (odometry or raw layout); default ${KITTI_ROOT_ENV}.")]
+Sequence_ = Annotated[Optional[str], typer.Option("--sequence", help="Odometry sequence, e.g. 00.")]
+Drive = Annotated[Optional[str], typer.Option("--drive", help="Raw drive, e.g. 2011_09_26_drive_0001.")]
+PairKind = Annotated[str, typer.Option("--pair", help="stereo (two cameras, one frame) or temporal (frame t -> t+step).")]
+Step = Annotated[int, typer.Option("--step", help="Frame step of temporal pairs.")]
+Cams = Annotated[Optional[str], typer.Option("--cams", help="Cameras a,b (default 0,1 for stereo, 0,0 for temporal).")]
+Estimators = Annotated[Optional[list[str]], typer.Option("--estimator", "-e", help="Repeatable: 7point, 8point, lmeds, ransac, magsac, deep, deep:PATH, module:function.")]
+Features = Annotated[str, typer.Option("--features", help="sift, orb or akaze.")]
+MaxKeypoints = Annotated[int, typer.Option("--max-keypoints", help="Keypoints per image.")]
+Ratio = Annotated[float, typer.Option("--ratio", help="Lowe ratio test.")]
+Mutual = Annotated[bool, typer.Option("--mutual/--no-mutual", help="Keep only mutual nearest neighbours.")]
+Threshold = Annotated[float, typer.Option("--threshold", help="Inlier threshold of robust estimators (px).")]
+Confidence = Annotated[float, typer.Option("--confidence", help="Confidence of robust estimators.")]
+MaxIters = Annotated[int, typer.Option("--max-iters", help="Iteration cap of robust estimators.")]
+Seed = Annotated[int, typer.Option("--seed", help="Random seed (robust estimators; synthetic scene).")]
+Norm = Annotated[str, typer.Option("--norm", help="Normalization for EPI-ABS / EPI-SQR: fbn, abs or etr.")]
+EvalThreshold = Annotated[float, typer.Option("--eval-threshold", help="Evaluation matches: GT symmetric epipolar distance below this (px).")]
+Synthetic = Annotated[bool, typer.Option("--synthetic", help="A synthetic KITTI-like scene instead of KITTI (no download).")]
+
+
+def parse_cams(cams: str | None) -> tuple[int, int] | None:
+    if cams is None:
+        return None
+    parts = cams.replace(" ", "").split(",")
+    try:
+        a, b = (int(p) for p in parts)
+    except ValueError:
+        raise FvizError(f"--cams {cams!r}: expected two camera numbers, e.g. 0,1") from None
+    return a, b
+
+
+def kitti_root(root: Path | None) -> Path:
+    if root is not None:
+        return root
+    if os.environ.get(KITTI_ROOT_ENV):
+        return Path(os.environ[KITTI_ROOT_ENV])
+    raise FvizError(f"--kitti-root: missing (or set ${KITTI_ROOT_ENV}); use --synthetic for a scene that needs no dataset")
+
+
+@dataclass(frozen=True)
+class EstimatorOptions:
+    names: tuple[str, ...]
+    features: str = "sift"
+    max_keypoints: int = 2000
+    ratio: float = 0.8
+    mutual: bool = True
+    threshold: float = 1.0
+    confidence: float = 0.999
+    max_iters: int = 10000
+    seed: int = 0
+
+    def feature_config(self):
+        from fviz.estimators.features import FeatureConfig
+
+        return FeatureConfig(self.features, self.max_keypoints, self.ratio, self.mutual)
+
+    def estimators(self):
+        """[(name, fn)] resolved once (a deep model loads once)."""
+        from fviz.estimators import get_estimator
+        from fviz.estimators.classical import RobustConfig
+
+        cfg = RobustConfig(self.threshold, self.confidence, self.max_iters, self.seed)
+        if len(set(self.names)) != len(self.names):
+            raise FvizError(f"--estimator: repeated name in {', '.join(self.names)}")
+        from fviz.estimators.registry import display_name
+
+        return [(display_name(n), get_estimator(n, cfg)) for n in self.names]

@@ -1,0 +1,257 @@
+"""KITTI in its two official layouts, auto-detected under ``--kitti-root``.
+
+odometry:  [odometry/]dataset/sequences/NN/{calib.txt, image_0..3/NNNNNN.png},  [odometry/]dataset/poses/NN.txt
+raw:       [raw/]DATE/calib_cam_to_cam.txt,  [raw/]DATE/DATE_drive_NNNN_sync/image_0X/data/NNNNNNNNNN.png
+
+Both are rectified: every camera's projection matrix is P_i = K [I | t_i] in the rectified frame of
+camera 0, so a pair's ground truth follows from two projection matrices of one world frame.
+Stereo pairs (two cameras, one frame) work in both layouts; temporal pairs (one camera, frames
+t -> t+k) need the odometry poses (camera 0 -> world, one 3x4 row per frame).
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from functools import cached_property
+from pathlib import Path
+
+import numpy as np
+
+from fviz.data.pair import Pair, PairId
+from fviz.errors import FvizError
+from fviz.geometry import fundamental_from_projections
+
+PAIR_KINDS = ("stereo", "temporal")
+# How far the ground truth can be trusted (README of the sample data): calibration vs poses.
+GT_ACCURACY_PX = {"stereo": 0.5, "temporal": 3.0}
+DEFAULT_CAMS = {"stereo": (0, 1), "temporal": (0, 0)}
+
+
+def read_image(path: Path) -> np.ndarray:
+    """uint8 (H, W) gray or (H, W, 3) RGB; a one-line FvizError naming the file otherwise."""
+    import cv2
+
+    if not path.is_file():
+        raise FvizError(f"missing image: {path}")
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None or img.size == 0:
+        raise FvizError(f"unreadable or corrupt image: {path}")
+    if img.dtype != np.uint8:
+        img = cv2.convertScaleAbs(img, alpha=255.0 / max(float(img.max()), 1.0))
+    if img.ndim == 3:
+        img = cv2.cvtColor(img, cv2.COLOR_BGRA2RGB if img.shape[2] == 4 else cv2.COLOR_BGR2RGB)
+    return img
+
+
+def _read_key_values(path: Path, what: str) -> dict[str, np.ndarray]:
+    if not path.is_file():
+        raise FvizError(f"missing {what}: {path}")
+    out = {}
+    for n, line in enumerate(path.read_text().splitlines(), 1):
+        if ":" not in line:
+            continue
+        key, _, rest = line.partition(":")
+        try:
+            out[key.strip()] = np.array(rest.split(), dtype=np.float64)
+        except ValueError:
+            if key.strip() != "calib_time":
+                raise FvizError(f"{what} {path}:{n}: cannot parse the numbers of '{key.strip()}'") from None
+    return out
+
+
+def _projection(values: dict[str, np.ndarray], key: str, path: Path) -> np.ndarray:
+    if key not in values:
+        raise FvizError(f"calibration {path}: no '{key}' entry")
+    if values[key].size != 12:
+        raise FvizError(f"calibration {path}: '{key}' has {values[key].size} numbers, expected 12")
+    return values[key].reshape(3, 4)
+
+
+def _decompose(P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rectified P = K [I | t] -> (K, t)."""
+    K = P[:, :3].copy()
+    return K, np.linalg.solve(K, P[:, 3])
+
+
+@dataclass
+class KittiSequence:
+    """One odometry sequence or one raw drive: frames, cameras, poses, and pairs."""
+
+    source: str  # "odometry" | "raw"
+    name: str  # "00" | "2011_09_26_drive_0001"
+    root: Path  # the --kitti-root the user gave
+    image_dirs: dict[int, Path]
+    calib_path: Path
+    projections: dict[int, np.ndarray]
+    poses_path: Path | None = None
+
+    def image_path(self, cam: int, frame: int) -> Path:
+        digits = 6 if self.source == "odometry" else 10
+        return self.image_dirs[cam] / f"{frame:0{digits}d}.png"
+
+    @cached_property
+    def num_frames(self) -> int:
+        """Frames of camera 0 (the one every selection starts from)."""
+        d = self.image_dirs[0]
+        return len(list(d.glob("*.png"))) if d.is_dir() else 0
+
+    @cached_property
+    def poses(self) -> np.ndarray:
+        """(N, 4, 4) camera-0 -> world transforms, one per frame."""
+        if self.poses_path is None:
+            raise FvizError(
+                f"temporal pairs need ground-truth poses, which the {self.source} layout of {self.name} lacks "
+                "(use --pair stereo, or an odometry sequence)"
+            )
+        if not self.poses_path.is_file():
+            raise FvizError(f"missing poses: {self.poses_path} (temporal pairs need them)")
+        try:
+            rows = np.loadtxt(self.poses_path, dtype=np.float64, ndmin=2)
+        except ValueError as exc:
+            raise FvizError(f"poses {self.poses_path}: cannot parse ({exc})") from None
+        if rows.shape[1] != 12:
+            raise FvizError(f"poses {self.poses_path}: {rows.shape[1]} numbers per line, expected 12")
+        T = np.tile(np.eye(4), (len(rows), 1, 1))
+        T[:, :3, :] = rows.reshape(-1, 3, 4)
+        return T
+
+    def check_frame(self, frame: int, field: str = "--frame") -> None:
+        if not 0 <= frame < self.num_frames:
+            raise FvizError(
+                f"{field} {frame} out of range: {self.source} {self.name} has frames 0..{self.num_frames - 1}"
+            )
+
+    def check_cam(self, cam: int) -> None:
+        if cam not in self.projections:
+            raise FvizError(f"--cams: camera {cam} unknown (this layout has cameras {sorted(self.projections)})")
+
+    def pair_id(self, frame: int, kind: str = "stereo", step: int = 1, cams: tuple[int, int] | None = None) -> PairId:
+        """Validate a selection and name its pair (no image is read)."""
+        if kind not in PAIR_KINDS:
+            raise FvizError(f"--pair {kind!r}: choose one of {', '.join(PAIR_KINDS)}")
+        cam_a, cam_b = cams or DEFAULT_CAMS[kind]
+        for cam in (cam_a, cam_b):
+            self.check_cam(cam)
+        if kind == "stereo":
+            if cam_a == cam_b:
+                raise FvizError(f"--cams {cam_a},{cam_b}: a stereo pair needs two different cameras")
+            frame_b = frame
+        else:
+            if step < 1:
+                raise FvizError(f"--step {step}: must be >= 1")
+            frame_b = frame + step
+        self.check_frame(frame)
+        self.check_frame(frame_b, "--frame + --step")
+        return PairId(self.source, self.name, kind, frame, frame_b, cam_a, cam_b, str(self.root))
+
+    def extrinsics(self, cam: int, frame: int, ref_frame: int) -> np.ndarray:
+        """4x4 map from camera 0 at ``ref_frame`` to camera ``cam`` at ``frame``."""
+        _, t = _decompose(self.projections[cam])
+        E = np.eye(4)
+        E[:3, 3] = t
+        if frame != ref_frame:
+            T = self.poses
+            if max(frame, ref_frame) >= len(T):
+                raise FvizError(f"poses {self.poses_path}: no pose for frame {max(frame, ref_frame)} ({len(T)} lines)")
+            E = E @ np.linalg.inv(T[frame]) @ T[ref_frame]
+        return E
+
+    def pair(self, frame: int, kind: str = "stereo", step: int = 1, cams: tuple[int, int] | None = None) -> Pair:
+        """Load a pair with its ground truth (x_b^T F_gt x_a = 0, pixels)."""
+        return self.load(self.pair_id(frame, kind, step, cams))
+
+    def load(self, pid: PairId) -> Pair:
+        E_a = self.extrinsics(pid.cam_a, pid.frame_a, pid.frame_a)
+        E_b = self.extrinsics(pid.cam_b, pid.frame_b, pid.frame_a)
+        K_a, _ = _decompose(self.projections[pid.cam_a])
+        K_b, _ = _decompose(self.projections[pid.cam_b])
+        T_ab = E_b @ np.linalg.inv(E_a)
+        F = fundamental_from_projections(K_a @ E_a[:3], K_b @ E_b[:3])
+        path_a, path_b = self.image_path(pid.cam_a, pid.frame_a), self.image_path(pid.cam_b, pid.frame_b)
+        image_a, image_b = read_image(path_a), read_image(path_b)
+        if image_a.shape[:2] != image_b.shape[:2]:
+            raise FvizError(
+                f"images of different sizes in a {pid.kind} pair: {path_a} is {image_a.shape[1]}x{image_a.shape[0]}, "
+                f"{path_b} is {image_b.shape[1]}x{image_b.shape[0]}"
+            )
+        return Pair(
+            id=pid, image_a=image_a, image_b=image_b, K_a=K_a, K_b=K_b, R=T_ab[:3, :3], t=T_ab[:3, 3], F_gt=F,
+            gt_accuracy_px=GT_ACCURACY_PX[pid.kind], extra={"path_a": str(path_a), "path_b": str(path_b)},
+        )
+
+
+_DRIVE = re.compile(r"^(\d{4}_\d{2}_\d{2})_(?:drive_)?(\d{4})(?:_sync)?$")
+
+
+def _first_dir(candidates: list[Path]) -> Path | None:
+    return next((c for c in candidates if c.is_dir()), None)
+
+
+def open_odometry(root: Path, sequence: str) -> KittiSequence:
+    seq = sequence.zfill(2) if sequence.isdigit() else sequence
+    bases = [root / "odometry" / "dataset", root / "dataset", root]
+    base = next((b for b in bases if (b / "sequences" / seq).is_dir()), None)
+    if base is None:
+        raise FvizError(f"--sequence {sequence}: no odometry layout under {root} (looked for [odometry/]dataset/sequences/{seq})")
+    seq_dir = base / "sequences" / seq
+    calib = seq_dir / "calib.txt"
+    values = _read_key_values(calib, "calibration")
+    projections = {cam: _projection(values, f"P{cam}", calib) for cam in range(4) if f"P{cam}" in values}
+    if 0 not in projections:
+        raise FvizError(f"calibration {calib}: no 'P0' entry")
+    return KittiSequence(
+        source="odometry", name=seq, root=root, calib_path=calib, projections=projections,
+        image_dirs={cam: seq_dir / f"image_{cam}" for cam in projections},
+        poses_path=base / "poses" / f"{seq}.txt",
+    )
+
+
+def open_raw(root: Path, drive: str) -> KittiSequence:
+    m = _DRIVE.match(drive)
+    if not m:
+        raise FvizError(f"--drive {drive!r}: expected DATE_drive_NNNN (e.g. 2011_09_26_drive_0001)")
+    date, number = m.groups()
+    name = f"{date}_drive_{number}"
+    date_dir = _first_dir([root / "raw" / date, root / date] + ([root] if root.name == date else []))
+    if date_dir is None:
+        raise FvizError(f"--drive {drive}: no raw layout under {root} (looked for [raw/]{date}/)")
+    drive_dir = date_dir / f"{name}_sync"
+    if not drive_dir.is_dir():
+        raise FvizError(f"--drive {drive}: missing drive folder {drive_dir}")
+    calib = date_dir / "calib_cam_to_cam.txt"
+    values = _read_key_values(calib, "calibration")
+    projections = {cam: _projection(values, f"P_rect_0{cam}", calib) for cam in range(4) if f"P_rect_0{cam}" in values}
+    if 0 not in projections:
+        raise FvizError(f"calibration {calib}: no 'P_rect_00' entry")
+    return KittiSequence(
+        source="raw", name=name, root=root, calib_path=calib, projections=projections,
+        image_dirs={cam: drive_dir / f"image_0{cam}" / "data" for cam in projections},
+    )
+
+
+def open_dataset(root: str | Path, sequence: str | None = None, drive: str | None = None) -> KittiSequence:
+    """Open an odometry sequence (``sequence="00"``) or a raw drive (``drive="2011_09_26_drive_0001"``).
+
+    With neither, the layout is auto-detected and must hold exactly one sequence or drive.
+    """
+    root = Path(root).expanduser()
+    if not root.is_dir():
+        raise FvizError(f"--kitti-root {root}: not a folder")
+    if sequence and drive:
+        raise FvizError("give --sequence (odometry) or --drive (raw), not both")
+    if sequence:
+        return open_odometry(root, sequence)
+    if drive:
+        return open_raw(root, drive)
+    found = [("sequence", p.name) for b in (root / "odometry" / "dataset", root / "dataset", root)
+             for p in sorted((b / "sequences").glob("*")) if p.is_dir()]
+    found += [("drive", p.name[: -len("_sync")]) for b in (root / "raw", root) for p in sorted(b.glob("*/*_drive_*_sync"))]
+    found += [("drive", p.name[: -len("_sync")]) for p in sorted(root.glob("*_drive_*_sync"))]
+    if not found:
+        raise FvizError(f"--kitti-root {root}: no KITTI layout found (expected odometry dataset/sequences/NN or raw DATE/DATE_drive_NNNN_sync)")
+    if len(found) > 1:
+        listed = ", ".join(f"--{k} {v}" for k, v in found[:6])
+        raise FvizError(f"--kitti-root {root} holds several sequences/drives: pick one ({listed})")
+    kind, name = found[0]
+    return open_odometry(root, name) if kind == "sequence" else open_raw(root, name)

@@ -1,0 +1,70 @@
+"""One registry from a name to an estimator.
+
+- a built-in name: ``7point``, ``8point``, ``lmeds``, ``ransac``, ``magsac``, ``deep`` (the bundled model);
+- ``deep:PATH``: a checkpoint trained by ``fviz train``;
+- ``module:function``: a user's own ``function(pair, x_a, x_b) -> F | (F, inlier_mask)``.
+
+Adding a built-in is one entry in ``BUILTINS``.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import Callable
+
+from fviz.errors import FvizError
+from fviz.estimators.base import EstimateFn
+from fviz.estimators.classical import MIN_MATCHES, RobustConfig, classical
+
+
+def _deep(spec: str, cfg: RobustConfig) -> EstimateFn:
+    from fviz.estimators.deep import deep_estimator
+
+    return deep_estimator(spec.partition(":")[2] or None)
+
+
+BUILTINS: dict[str, Callable[[str, RobustConfig], EstimateFn]] = {
+    **{name: (lambda spec, cfg: classical(spec, cfg)) for name in MIN_MATCHES},
+    "deep": _deep,
+}
+
+DEFAULT_ESTIMATORS = ("8point", "ransac", "magsac")
+
+
+def needs_matches(spec: str) -> bool:
+    """Whether the estimator reads the matches (deep ones work on the images alone)."""
+    return not (spec == "deep" or spec.startswith("deep:"))
+
+
+def _user_function(spec: str) -> EstimateFn:
+    module_name, _, attr = spec.partition(":")
+    try:
+        module = importlib.import_module(module_name)
+    except ImportError as exc:
+        raise FvizError(f"--estimator {spec}: cannot import module {module_name!r} ({exc})") from None
+    fn = getattr(module, attr, None)
+    if not callable(fn):
+        raise FvizError(f"--estimator {spec}: {module_name} has no function {attr!r}")
+    return fn
+
+
+def get_estimator(spec: str, cfg: RobustConfig = RobustConfig()) -> EstimateFn:
+    """Resolve ``--estimator`` values; unknown names raise FvizError listing the known ones."""
+    head = spec.partition(":")[0]
+    if spec in BUILTINS or head == "deep":
+        return BUILTINS["deep" if head == "deep" else spec](spec, cfg)
+    if ":" in spec:
+        return _user_function(spec)
+    raise FvizError(f"--estimator {spec!r}: unknown (built-in: {', '.join(BUILTINS)}; or deep:PATH, or module:function)")
+
+
+def display_name(spec: str) -> str:
+    """A short name safe in entity paths and CSV columns: ``deep:runs/x/best.pt`` -> ``deep-best``."""
+    import re
+    from pathlib import Path
+
+    head, _, rest = spec.partition(":")
+    if not rest:
+        return spec
+    tail = Path(rest).stem if head == "deep" else rest
+    return re.sub(r"[^A-Za-z0-9_.-]+", "-", f"{head}-{tail}" if head == "deep" else tail)

@@ -1,0 +1,207 @@
+"""FNet: the paper's networks, all 36 variants.
+
+    FNet(arch, head, pos, norm, input_hw=(96, 320))
+    forward(img_a, img_b): (B, 1, H, W) float in [0, 1] x 2 -> F (B, 3, 3)
+
+F satisfies ``x_b^T F x_a = 0`` in pixel coordinates of the model input (H, W) (OpenCV origin) and
+is normalized by the chosen layer (etr / fbn / abs).  :func:`fviz.models.predict_F` maps it back to
+the pixels of the original images.
+
+Pipeline: backbone (:mod:`.backbones`) -> location-aware pooling (:mod:`.pooling`) -> flatten ->
+head (:mod:`.heads`) -> normalization (:mod:`.normalization`).
+
+Variants (``VARIANTS``, 36 names ``{arch}-{head}[-pos]-{norm}``): 2 archs (single, siamese) x the
+paper's six heads {Base, POS, EPI, EPI+POS, REC, REC+POS} = {base, base-pos, epi, epi-pos, rec,
+rec-pos} x 3 norms (etr, fbn, abs), e.g. "siamese-rec-pos-fbn".
+
+Input size and pooling (why the defaults are what they are)
+-----------------------------------------------------------
+The paper's layer list applied at full KITTI resolution (376 x 1241) keeps a 128-channel map of
+~470k positions up to the FC layer: a 1024-wide FC after it would hold billions of weights.  Here:
+
+- the input is resized to ``input_hw`` = 96 x 320 by default (KITTI's aspect ratio, 1/3.9 scale);
+- the single max-pool is an *adaptive* max-pool to a fixed ``pool_grid`` of 3 x 10 windows
+  (32 x 32 input pixels each at 96 x 320), so the FC size does not depend on the input size at all;
+- with POS, each window also reports where (row, col in [0, 1]) each channel's maximum was: the
+  location information survives the large windows;
+- the FC has ``hidden`` = 256 units: 128 ch x 3 (POS) x 30 windows x 256 = 2.95 M weights.
+
+Every variant then has at most 3.3 M parameters (13 MB in float32, 6.6 MB in float16; the weights
+file that training exports is float16).  ``benchmarks/bench_models.py`` measures parameters, file
+size, CPU ms/pair and a short-training validation EPI-ABS for several input sizes (64 x 208,
+96 x 320, 128 x 416): Siamese models stay well under the 30 ms/pair CPU target at every size, the
+single-stream ones (full-resolution 128-channel 1x1 convolution) grow with the pixel count, and
+96 x 320 is where single-stream still meets it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, fields
+
+import torch
+from torch import nn
+
+from fviz.errors import FvizError
+from fviz.geometry.fundamental import NORMS
+from fviz.models.backbones import make_backbone
+from fviz.models.heads import make_head
+from fviz.models.normalization import make_norm
+from fviz.models.pooling import LocationAwarePool
+
+ARCHS = ("single", "siamese")
+HEAD_NAMES = ("base", "rec", "epi")
+DEFAULT_INPUT_HW = (96, 320)
+
+
+def variant_name(arch: str, head: str, pos: bool, norm: str) -> str:
+    """("siamese", "rec", True, "fbn") -> "siamese-rec-pos-fbn"."""
+    return f"{arch}-{head}{'-pos' if pos else ''}-{norm}"
+
+
+def parse_variant(name: str) -> dict:
+    """"siamese-rec-pos-fbn" -> {"arch": "siamese", "head": "rec", "pos": True, "norm": "fbn"}."""
+    parts = str(name).strip().lower().split("-")
+    pos = "pos" in parts
+    rest = [p for p in parts if p != "pos"]
+    if len(rest) != 3 or rest[0] not in ARCHS or rest[1] not in HEAD_NAMES or rest[2] not in NORMS or len(parts) != len(rest) + pos:
+        raise FvizError(
+            f"unknown model variant {name!r}: expected ARCH-HEAD[-pos]-NORM with ARCH in {'/'.join(ARCHS)}, "
+            f"HEAD in {'/'.join(HEAD_NAMES)}, NORM in {'/'.join(NORMS)} (e.g. 'siamese-rec-pos-fbn')"
+        )
+    return {"arch": rest[0], "head": rest[1], "pos": pos, "norm": rest[2]}
+
+
+def variants() -> list[str]:
+    """All 36 variant names: arch x {base, base-pos, epi, epi-pos, rec, rec-pos} x norm."""
+    return [
+        variant_name(arch, head, pos, norm)
+        for arch in ARCHS
+        for head in ("base", "epi", "rec")
+        for pos in (False, True)
+        for norm in NORMS
+    ]
+
+
+VARIANTS: tuple[str, ...] = tuple(variants())
+
+
+@dataclass(frozen=True)
+class FNetConfig:
+    """Everything needed to rebuild an FNet (stored in checkpoints)."""
+
+    arch: str = "siamese"
+    head: str = "rec"
+    pos: bool = True
+    norm: str = "fbn"
+    input_hw: tuple[int, int] = DEFAULT_INPUT_HW
+    width: int = 128
+    pool_grid: tuple[int, int] = (3, 10)
+    hidden: int = 256
+    dropout: float = 0.5
+    conditioned: bool = True
+    ucn_channels: tuple[int, int, int] = (32, 64, 64)
+
+    def __post_init__(self):
+        object.__setattr__(self, "input_hw", (int(self.input_hw[0]), int(self.input_hw[1])))
+        object.__setattr__(self, "pool_grid", (int(self.pool_grid[0]), int(self.pool_grid[1])))
+        object.__setattr__(self, "ucn_channels", tuple(int(c) for c in self.ucn_channels))
+        parse_variant(self.variant)  # validates arch / head / norm
+        if min(self.input_hw) < 8:
+            raise FvizError(f"model input size {self.input_hw} is too small (at least 8 x 8)")
+
+    @property
+    def variant(self) -> str:
+        return variant_name(self.arch, self.head, self.pos, self.norm)
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        return {k: list(v) if isinstance(v, tuple) else v for k, v in d.items()}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "FNetConfig":
+        names = {f.name for f in fields(cls)}
+        unknown = sorted(set(d) - names)
+        if unknown:
+            raise FvizError(f"model config has unknown field(s) {', '.join(unknown)}")
+        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items()})
+
+    @classmethod
+    def from_variant(cls, name: str, **kw) -> "FNetConfig":
+        return cls(**parse_variant(name), **kw)
+
+
+class FNet(nn.Module):
+    """One of the paper's networks.
+
+    forward(img_a, img_b, strict_norm=None): (B, 1, H, W) x 2, float in [0, 1], (H, W) = input_hw
+    -> F (B, 3, 3) float32 in model-input pixels, normalized (etr / fbn / abs).
+    ``strict_norm`` is passed to the normalization layer (None: strict in eval mode; see
+    :mod:`fviz.models.normalization`).
+    """
+
+    def __init__(
+        self,
+        arch: str = "siamese",
+        head: str = "rec",
+        pos: bool = True,
+        norm: str = "fbn",
+        input_hw: tuple[int, int] = DEFAULT_INPUT_HW,
+        *,
+        width: int = 128,
+        pool_grid: tuple[int, int] = (3, 10),
+        hidden: int = 256,
+        dropout: float = 0.5,
+        conditioned: bool = True,
+        ucn_channels: tuple[int, int, int] = (32, 64, 64),
+    ):
+        super().__init__()
+        self.config = FNetConfig(
+            arch=arch, head=head, pos=pos, norm=norm, input_hw=tuple(input_hw), width=width, pool_grid=tuple(pool_grid),
+            hidden=hidden, dropout=dropout, conditioned=conditioned, ucn_channels=tuple(ucn_channels),
+        )
+        c = self.config
+        self.backbone = make_backbone(c.arch, c.width, c.ucn_channels)
+        self.pool = LocationAwarePool(c.pool_grid, c.pos)
+        self.head = make_head(c.head, self.pool.out_features(self.backbone.out_channels), c.input_hw, c.hidden, c.dropout, c.conditioned)
+        self.norm = make_norm(c.norm)
+
+    @classmethod
+    def from_config(cls, config: FNetConfig | dict) -> "FNet":
+        if isinstance(config, dict):
+            config = FNetConfig.from_dict(config)
+        return cls(**{f.name: getattr(config, f.name) for f in fields(config)})
+
+    @classmethod
+    def from_variant(cls, name: str, **kw) -> "FNet":
+        return cls(**parse_variant(name), **kw)
+
+    @property
+    def variant(self) -> str:
+        return self.config.variant
+
+    @property
+    def input_hw(self) -> tuple[int, int]:
+        return self.config.input_hw
+
+    def _check(self, img: torch.Tensor, which: str) -> None:
+        H, W = self.config.input_hw
+        if img.ndim != 4 or img.shape[1] != 1 or tuple(img.shape[-2:]) != (H, W):
+            raise FvizError(
+                f"{self.variant}: image {which} must be (B, 1, {H}, {W}) (the model's input size), got {tuple(img.shape)}"
+            )
+
+    def unnormalized(self, img_a: torch.Tensor, img_b: torch.Tensor) -> torch.Tensor:
+        """F before the normalization layer.  (B, 1, H, W) x 2 -> (B, 3, 3) float32."""
+        self._check(img_a, "a")
+        self._check(img_b, "b")
+        x = self.pool(self.backbone(img_a, img_b))
+        return self.head(x.flatten(1))
+
+    def forward(self, img_a: torch.Tensor, img_b: torch.Tensor, strict_norm: bool | None = None) -> torch.Tensor:
+        F = self.unnormalized(img_a, img_b)
+        with torch.autocast(device_type=F.device.type, enabled=False):
+            return self.norm(F.float(), strict=strict_norm)
+
+
+def count_parameters(model: nn.Module) -> int:
+    return sum(p.numel() for p in model.parameters())

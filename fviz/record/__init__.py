@@ -1,0 +1,1 @@
+"""Recording: layout (entity paths, blueprint), writing, reading back."""

@@ -1,0 +1,47 @@
+"""Open recordings in Rerun's viewers. Servers bind 127.0.0.1 unless the user asks otherwise
+(Rerun's own default is 0.0.0.0)."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+from fviz.errors import FvizError
+
+
+def _rerun_cmd() -> list[str]:
+    exe = shutil.which("rerun")
+    return [exe] if exe else [sys.executable, "-m", "rerun"]
+
+
+def spawn_native(path: Path) -> subprocess.Popen:
+    """Start the native viewer on a file and return at once."""
+    return subprocess.Popen([*_rerun_cmd(), str(path)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+
+
+def web_command(path: Path, host: str = "127.0.0.1", port: int = 9876, web_port: int = 9090) -> tuple[list[str], str]:
+    """The command serving ``path`` in the web viewer, and the URL to open."""
+    cmd = [*_rerun_cmd(), str(path), "--serve-web", "--bind", host, "--port", str(port), "--web-viewer-port", str(web_port)]
+    shown = "127.0.0.1" if host in ("0.0.0.0", "::") else host
+    url = f"http://{shown}:{web_port}/?url=rerun%2Bhttp://{shown}:{port}/proxy"
+    return cmd, url
+
+
+def serve_web(path: Path, host: str = "127.0.0.1", port: int = 9876, web_port: int = 9090) -> None:
+    """Serve the web viewer until Ctrl-C, printing its URL."""
+    if not Path(path).is_file():
+        raise FvizError(f"no such recording: {path}")
+    cmd, url = web_command(Path(path), host, port, web_port)
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    print(f"web viewer: {url}  (Ctrl-C to stop)", flush=True)
+    try:
+        _, err = proc.communicate()
+    except KeyboardInterrupt:
+        proc.terminate()
+        proc.wait(timeout=10)
+        return
+    if proc.returncode:
+        last = (err or "").strip().splitlines()[-1:] or ["no message"]
+        raise FvizError(f"the web viewer stopped (exit {proc.returncode}): {last[0]}")
