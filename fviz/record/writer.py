@@ -169,8 +169,15 @@ def log_pair(rec, index: int, pair: Pair, result: PairResult, n_lines: int = 30)
     eps = [(r.name, epipoles(r.F)) for r in ok]
     for i, v in enumerate(("a", "b")):
         _log_epipoles(rec, L.epipoles(v), [(n, e[i]) for n, e in eps], sizes[v])
+    log_metrics(rec, result)
+
+
+def log_metrics(rec, result: PairResult) -> None:
+    """One value per F and metric, in the order of the series names (NaN for a failed estimator)."""
+    import rerun as rr
+
     for key in SCALAR_METRICS:
-        rec.log(L.metric(key), rr.Scalars([r.metrics[key] for r in result.estimators if not r.error]))
+        rec.log(L.metric(key), rr.Scalars([r.metrics.get(key, np.nan) for r in result.estimators]))
 
 
 def log_static(rec, estimator_names: list[str]) -> None:
@@ -185,7 +192,7 @@ def log_static(rec, estimator_names: list[str]) -> None:
 def write_pair_recording(path: str | Path, pair: Pair, result: PairResult, n_lines: int = 30) -> Path:
     """One pair, one file, with its blueprint stored (what ``fviz inspect pair`` writes)."""
     with RecordingWriter(path, "fviz-inspect", L.blueprint(pair.size_a, pair.size_b)) as w:
-        log_static(w.rec, [r.name for r in result.estimators if not r.error])
+        log_static(w.rec, [r.name for r in result.estimators])
         log_pair(w.rec, 0, pair, result, n_lines)
     return Path(path)
 
