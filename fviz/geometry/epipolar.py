@@ -93,7 +93,7 @@ def clip_lines(lines: np.ndarray, width: int, height: int) -> tuple[np.ndarray, 
     lines = np.asarray(lines, dtype=np.float64).reshape(-1, 3)
     x0, x1, y0, y1 = -0.5, width - 0.5, -0.5, height - 0.5
     a, b, c = lines[:, 0:1], lines[:, 1:2], lines[:, 2:3]
-    with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         # intersections with x = x0, x = x1 (solve for y) and y = y0, y = y1 (solve for x)
         xs = np.array([x0, x1])[None, :]
         ys_at = -(a * xs + c) / b

@@ -1,0 +1,3 @@
+from fviz.cli import main
+
+main()

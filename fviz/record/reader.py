@@ -1,0 +1,363 @@
+"""Read fviz recordings back: what ``fviz summary`` prints and what tests check recordings with.
+
+Works on any fviz ``.rrd`` (``inspect``, ``eval``, ``triage``) and on any index timeline: items are the
+time indices of the ``pair/info`` and ``metrics/*`` rows on the recording's main timeline (``rank`` if
+present, else ``pair``, else the first other sequence timeline; see :func:`main_timeline`).
+
+Every function takes a path and re-reads the file (pure: no caches, no state). A missing file, a file that
+is not an RRD, or one cut mid-write (no footer, or a frame running past the end) raises
+:class:`fviz.errors.FvizError` with a one-line message naming the file.
+
+Entity paths are given and returned as in :mod:`fviz.record.layout` (``a/image``, ``metrics/epi_abs``;
+a leading ``/`` is accepted); the root entity is ``/``.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Iterator
+
+from fviz.errors import FvizError
+from fviz.record import layout as L
+
+# Timelines Rerun adds by itself; never an item index.
+BUILTIN_TIMELINES = ("log_time", "log_tick")
+# Main timeline, by preference (triage ranks pairs that also carry their ``pair`` index).
+PREFERRED_TIMELINES = ("rank", L.TIMELINE)
+
+_ROW_ID = "rerun.controls.RowId"
+_NAMES = "SeriesLines:names"
+_SCALARS = "Scalars:scalars"
+_TEXT = "TextDocument:text"
+_LOG_TEXT = "TextLog:text"
+
+
+@dataclass(frozen=True)
+class Item:
+    """One time index of the main timeline (one pair in inspect/eval, one rank in triage).
+
+    index:   the value on the main timeline (int)
+    name:    the pair's name from ``pair/info`` (None when not logged)
+    metrics: {metric: {estimator: value}} from ``metrics/{metric}``; NaN where an estimator failed
+    errors:  {estimator: message} from ``errors/{estimator}``
+    times:   {timeline: value} of the other sequence timelines on those rows (e.g. ``{"pair": 7}`` in triage)
+    """
+
+    index: int
+    name: str | None = None
+    metrics: dict[str, dict[str, float]] = field(default_factory=dict)
+    errors: dict[str, str] = field(default_factory=dict)
+    times: dict[str, int] = field(default_factory=dict)
+
+    def estimators(self) -> list[str]:
+        """Estimator names with a value or an error here, in series order."""
+        seen: dict[str, None] = {}
+        for per in self.metrics.values():
+            seen.update(dict.fromkeys(per))
+        seen.update(dict.fromkeys(self.errors))
+        return list(seen)
+
+
+@dataclass(frozen=True)
+class RecordingSummary:
+    """What a recording holds (see :func:`read_recording`).
+
+    path:          the file read
+    app_id:        the recording's application id (``fviz-inspect``, ...)
+    recording_id:  its recording id
+    timeline:      the main timeline (None when nothing is on a timeline)
+    timelines:     every index timeline found, builtin ones included, sorted
+    items:         one :class:`Item` per index of the main timeline, ascending
+    metrics:       metric names (``metrics/{metric}`` entities), sorted
+    estimators:    series names of the metrics (static ``SeriesLines``), in logged order
+    has_blueprint: whether a default blueprint is stored in the file
+    entity_paths:  every entity path, sorted (Rerun's internal ``/__properties`` left out)
+    """
+
+    path: Path
+    app_id: str
+    recording_id: str
+    timeline: str | None
+    timelines: tuple[str, ...]
+    items: tuple[Item, ...]
+    metrics: tuple[str, ...]
+    estimators: tuple[str, ...]
+    has_blueprint: bool
+    entity_paths: tuple[str, ...]
+
+    def item(self, name_or_index: str | int) -> Item:
+        """The item named so (pair name) or at that index; KeyError if absent."""
+        for it in self.items:
+            if it.name == name_or_index if isinstance(name_or_index, str) else it.index == name_or_index:
+                return it
+        raise KeyError(name_or_index)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready: NaN and infinities become None, the path a string."""
+        d = asdict(self)
+        d["path"] = str(self.path)
+        return _nan_to_none(d)
+
+
+# --------------------------------------------------------------------------------------------- opening
+
+
+def _entity(path: str) -> str:
+    """Layout spelling -> Rerun's (``a/image`` -> ``/a/image``)."""
+    return "/" + path.strip("/")
+
+
+def _layout(path: str) -> str:
+    """Rerun's spelling -> layout's (``/a/image`` -> ``a/image``; the root stays ``/``)."""
+    return path.strip("/") or "/"
+
+
+def _one_line(exc: BaseException) -> str:
+    text = " ".join(str(exc).split()) or type(exc).__name__
+    return text
+
+
+def open_rrd(path: str | Path):
+    """A checked ``rerun.chunk.RrdReader`` on a complete fviz/Rerun file, or FvizError naming it.
+
+    Complete means a footer is present (Rerun 0.41 writes one on close; ``fviz`` writers rename the file
+    into place only after that): a file cut exactly between two frames would otherwise read as a shorter,
+    silently incomplete recording."""
+    from rerun.chunk import RrdReader
+
+    p = Path(path)
+    if not p.exists():
+        raise FvizError(f"{p}: no such recording")
+    if not p.is_file():
+        raise FvizError(f"{p}: not a file")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # RerunWarning on footer-less files: reported below instead
+        try:
+            reader = RrdReader(p)
+            if not reader.recordings():
+                raise FvizError(f"{p}: not a recording (no recording store in the file)")
+            reader.store()  # reads the footer's manifest; raises when there is none
+        except FvizError:
+            raise
+        except ValueError as exc:
+            if "footer" in str(exc) or "manifest" in str(exc) or "legacy" in str(exc):
+                raise FvizError(f"{p}: truncated recording (no footer: cut mid-write?)") from None
+            raise FvizError(f"{p}: cannot read the recording ({_one_line(exc)})") from None
+        except Exception as exc:  # RuntimeError from the Rust reader: not an RRD, frame past the end, I/O
+            msg = _one_line(exc)
+            if "exceeds file size" in msg or "unexpected end" in msg.lower():
+                raise FvizError(f"{p}: truncated recording (cut mid-write?): {msg}") from None
+            raise FvizError(f"{p}: not a readable Rerun recording: {msg}") from None
+    return reader
+
+
+def _chunks(path: str | Path, content: str | list[str] | None = None) -> Iterator[tuple[str, bool, Any]]:
+    """(entity path as in the layout, is_static, pyarrow RecordBatch) of the first recording's chunks."""
+    reader = open_rrd(path)
+    stream = reader.stream()
+    if content is not None:
+        stream = stream.filter(content=content)
+    try:
+        for ch in stream.to_chunks():
+            yield _layout(ch.entity_path), ch.is_static, ch.to_record_batch()
+    except Exception as exc:
+        raise FvizError(f"{Path(path)}: cannot read the recording ({_one_line(exc)})") from None
+
+
+def _index_names(rb) -> list[str]:
+    """Index (timeline) columns of a record batch."""
+    out = []
+    for f in rb.schema:
+        md = f.metadata or {}
+        if md.get(b"rerun:kind") == b"index":
+            out.append(f.name)
+    return out
+
+
+def _ints(col) -> list[int]:
+    """An index column as Python ints (timestamps/durations as integer nanoseconds: pyarrow refuses them)."""
+    import pyarrow as pa
+
+    if pa.types.is_timestamp(col.type) or pa.types.is_duration(col.type) or pa.types.is_date(col.type):
+        col = col.cast(pa.int64())
+    return col.to_pylist()
+
+
+# --------------------------------------------------------------------------------------------- helpers
+
+
+def entity_paths(path: str | Path) -> list[str]:
+    """Every entity path in the recording, sorted, layout spelling (``["/", "a/image", ...]``)."""
+    reader = open_rrd(path)
+    paths = reader.store().schema().entity_paths()
+    return sorted({_layout(p) for p in paths if not p.startswith("/__")})
+
+
+def timelines(path: str | Path) -> list[str]:
+    """Every index timeline in the recording, sorted."""
+    reader = open_rrd(path)
+    return sorted(ix.name for ix in reader.store().schema().index_columns())
+
+
+def main_timeline(names: list[str] | tuple[str, ...]) -> str | None:
+    """``rank`` > ``pair`` > the first other non-builtin timeline (sorted) > None."""
+    for t in PREFERRED_TIMELINES:
+        if t in names:
+            return t
+    rest = sorted(t for t in names if t not in BUILTIN_TIMELINES)
+    return rest[0] if rest else None
+
+
+def columns(path: str | Path, entity: str) -> list[str]:
+    """Column names (components and timelines) of an entity, sorted; FvizError if the entity is absent."""
+    names: set[str] = set()
+    found = False
+    for _, _, rb in _chunks(path, _entity(entity)):
+        found = True
+        names.update(n for n in rb.schema.names if n != _ROW_ID)
+    if not found:
+        raise FvizError(f"{Path(path)}: no entity {_layout(entity)!r}")
+    return sorted(names)
+
+
+def column(path: str | Path, entity: str, name: str, timeline: str | None = None) -> list:
+    """The values of one column of an entity, as Python objects, one per logged row.
+
+    name: a component column (``"Scalars:scalars"``, ``"TextDocument:text"``, ``"residual_px"``, ...) or a
+          timeline (``"pair"``); component values are lists (a row holds a batch).
+    Rows: static rows first, then temporal rows ascending on ``timeline`` (default: the recording's main
+    timeline; rows not on it keep their logged order at the end). FvizError if the entity or column is
+    missing (the message lists the columns there are)."""
+    reader = open_rrd(path)
+    tl = timeline or main_timeline([ix.name for ix in reader.store().schema().index_columns()])
+    static: list = []
+    rows: list[tuple[int, int, Any]] = []  # (has no time, time, value)
+    seen_cols: set[str] = set()
+    for _, is_static, rb in _chunks(path, _entity(entity)):
+        seen_cols.update(n for n in rb.schema.names if n != _ROW_ID)
+        if name not in rb.schema.names:
+            continue
+        col = rb.column(name)
+        values = _ints(col) if name in _index_names(rb) else col.to_pylist()
+        if is_static:
+            static.extend(values)
+        else:
+            times = _ints(rb.column(tl)) if tl in rb.schema.names else [None] * len(values)
+            rows.extend((t is None, t or 0, v) for t, v in zip(times, values))
+    if not seen_cols:
+        raise FvizError(f"{Path(path)}: no entity {_layout(entity)!r}")
+    if name not in seen_cols:
+        raise FvizError(f"{Path(path)}: entity {_layout(entity)!r} has no column {name!r} "
+                        f"(it has {', '.join(sorted(seen_cols))})")
+    rows.sort(key=lambda r: (r[0], r[1]))  # stable: logged order within a time
+    return static + [v for _, _, v in rows]
+
+
+def text(path: str | Path, entity: str) -> list[str]:
+    """The texts of a TextDocument or TextLog entity (``summary``, ``pair/info``, ``errors/{e}``), in row order."""
+    cols = columns(path, entity)
+    name = _TEXT if _TEXT in cols else _LOG_TEXT
+    return [v[0] if isinstance(v, list) and v else v for v in column(path, entity, name)]
+
+
+# --------------------------------------------------------------------------------------------- summary
+
+
+def read_recording(path: str | Path, timeline: str | None = None) -> RecordingSummary:
+    """Summarize a recording: app id, timelines, items (pair name, metrics, errors per index), blueprint,
+    entity paths.  timeline: the index timeline of the items (default :func:`main_timeline`)."""
+    p = Path(path)
+    reader = open_rrd(p)
+    rec = reader.recordings()[0]
+    schema = reader.store().schema()
+    all_timelines = sorted(ix.name for ix in schema.index_columns())
+    tl = timeline or main_timeline(all_timelines)
+    if timeline is not None and timeline not in all_timelines:
+        raise FvizError(f"{p}: no timeline {timeline!r} (it has {', '.join(all_timelines) or 'none'})")
+    entities = sorted({_layout(e) for e in schema.entity_paths() if not e.startswith("/__")})
+    metric_prefix = L.metric("")
+    error_prefix = L.error("")
+
+    names: dict[str, list[str]] = {}  # metric -> series names (static)
+    values: dict[int, dict[str, list[float]]] = {}  # index -> metric -> values in series order
+    pair_names: dict[int, str] = {}
+    errors: dict[int, dict[str, str]] = {}
+    times: dict[int, dict[str, int]] = {}
+
+    def rows(rb) -> Iterator[tuple[int, int]]:
+        """(row number, index on tl) for the rows of a temporal batch that are on tl."""
+        if tl is None or tl not in rb.schema.names:
+            return
+        others = [t for t in _index_names(rb) if t != tl and t not in BUILTIN_TIMELINES]
+        other_vals = {t: _ints(rb.column(t)) for t in others}
+        for i, ix in enumerate(_ints(rb.column(tl))):
+            if ix is None:
+                continue
+            slot = times.setdefault(ix, {})
+            for t in others:
+                if other_vals[t][i] is not None:
+                    slot[t] = other_vals[t][i]
+            yield i, ix
+
+    content = [_entity(L.metric("**")), _entity(L.PAIR_INFO), _entity(L.error("**"))]
+    for ent, is_static, rb in _chunks(p, content):
+        cols = rb.schema.names
+        if ent.startswith(metric_prefix):
+            key = ent[len(metric_prefix):]
+            if _NAMES in cols:
+                for v in rb.column(_NAMES).to_pylist():
+                    if v is not None:
+                        names[key] = list(v)
+            if _SCALARS in cols and not is_static:
+                col = rb.column(_SCALARS).to_pylist()
+                for i, ix in rows(rb):
+                    if col[i] is not None:
+                        values.setdefault(ix, {})[key] = [math.nan if x is None else float(x) for x in col[i]]
+        elif ent == L.PAIR_INFO and _TEXT in cols and not is_static:
+            col = rb.column(_TEXT).to_pylist()
+            for i, ix in rows(rb):
+                if col[i]:
+                    pair_names[ix] = col[i][0]
+        elif ent.startswith(error_prefix) and _LOG_TEXT in cols and not is_static:
+            est = ent[len(error_prefix):]
+            col = rb.column(_LOG_TEXT).to_pylist()
+            for i, ix in rows(rb):
+                if col[i]:
+                    errors.setdefault(ix, {})[est] = col[i][0]
+
+    metrics = sorted(set(names) | {k for per in values.values() for k in per})
+    estimators: dict[str, None] = {}
+    for key in metrics:
+        estimators.update(dict.fromkeys(names.get(key, [])))
+    items = []
+    for ix in sorted(set(values) | set(pair_names) | set(errors)):
+        per_metric = {}
+        for key, vals in sorted(values.get(ix, {}).items()):
+            series = names.get(key, [])
+            per_metric[key] = {(series[j] if j < len(series) else f"series{j}"): v for j, v in enumerate(vals)}
+        items.append(Item(ix, pair_names.get(ix), per_metric, errors.get(ix, {}), times.get(ix, {})))
+    return RecordingSummary(
+        path=p,
+        app_id=rec.application_id,
+        recording_id=rec.recording_id,
+        timeline=tl,
+        timelines=tuple(all_timelines),
+        items=tuple(items),
+        metrics=tuple(metrics),
+        estimators=tuple(estimators),
+        has_blueprint=bool(reader.blueprints()),
+        entity_paths=tuple(entities),
+    )
+
+
+def _nan_to_none(x):
+    if isinstance(x, float) and not math.isfinite(x):
+        return None  # JSON has no NaN / Infinity
+    if isinstance(x, dict):
+        return {k: _nan_to_none(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_nan_to_none(v) for v in x]
+    return x

@@ -1,0 +1,40 @@
+"""Shared fixtures. The real KITTI samples live beside the project (never inside it):
+``$FVIZ_KITTI_ROOT``, default ``../shared/data/kitti``. Missing data skips locally and fails in CI."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+PROJECT = Path(__file__).resolve().parents[1]
+
+
+def _kitti_root() -> Path:
+    return Path(os.environ.get("FVIZ_KITTI_ROOT", PROJECT.parent / "shared" / "data" / "kitti"))
+
+
+@pytest.fixture(scope="session")
+def kitti_root() -> Path:
+    root = _kitti_root()
+    if not (root / "odometry" / "dataset" / "sequences" / "00" / "calib.txt").is_file():
+        msg = f"KITTI sample data missing at {root} (set FVIZ_KITTI_ROOT)"
+        if os.environ.get("CI", "").lower() == "true":
+            pytest.fail(msg)
+        pytest.skip(msg)
+    return root
+
+
+@pytest.fixture(scope="session")
+def odometry(kitti_root):
+    from fviz.data.kitti import open_dataset
+
+    return open_dataset(kitti_root, sequence="00")
+
+
+@pytest.fixture(scope="session")
+def raw_drive(kitti_root):
+    from fviz.data.kitti import open_dataset
+
+    return open_dataset(kitti_root, drive="2011_09_26_drive_0001")

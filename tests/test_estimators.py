@@ -1,0 +1,108 @@
+"""Features, classical estimators and the registry on the real samples."""
+
+import sys
+
+import numpy as np
+import pytest
+
+from fviz.errors import FvizError
+from fviz.estimators import get_estimator, run_estimator
+from fviz.estimators.classical import MIN_MATCHES, RobustConfig
+from fviz.estimators.features import FeatureCache, FeatureConfig, detect, match
+from fviz.estimators.registry import display_name
+from fviz.geometry import f_distance, sampson_distance
+from fviz.geometry import symmetric_epipolar_distance as sed
+
+
+@pytest.fixture(scope="module")
+def temporal(odometry):
+    pair = odometry.pair(3, "temporal")
+    cfg = FeatureConfig()
+    return pair, match(detect(pair.image_a, cfg), detect(pair.image_b, cfg), cfg)
+
+
+@pytest.mark.parametrize("kind", ["sift", "orb", "akaze"])
+def test_every_feature_type_matches_consistently_with_ground_truth(temporal, kind):
+    pair = temporal[0]
+    cfg = FeatureConfig(kind=kind)
+    m = match(detect(pair.image_a, cfg), detect(pair.image_b, cfg), cfg)
+    assert len(m) > 100
+    assert np.median(sed(pair.F_gt, m.x_a, m.x_b)) < 3.0
+
+
+def test_mutual_check_and_ratio_only_remove_matches(temporal):
+    pair = temporal[0]
+    fa, fb = detect(pair.image_a), detect(pair.image_b)
+    loose = match(fa, fb, FeatureConfig(ratio=0.9, mutual=False))
+    strict = match(fa, fb, FeatureConfig(ratio=0.7, mutual=True))
+    assert len(strict) < len(loose)
+    assert set(map(tuple, strict.idx)) <= set(map(tuple, loose.idx))
+    assert np.all(np.diff(loose.distance) >= 0)  # best first
+
+
+def test_feature_cache_detects_each_image_once(odometry):
+    cache = FeatureCache(FeatureConfig())
+    for f in range(3):
+        p = odometry.pair(f, "temporal")
+        cache.get(p.id.key_a, p.image_a), cache.get(p.id.key_b, p.image_b)
+    assert (cache.misses, cache.hits) == (4, 2)
+
+
+@pytest.mark.parametrize("name", sorted(MIN_MATCHES))
+def test_classical_estimators_find_a_valid_f(temporal, name):
+    pair, m = temporal
+    est = run_estimator(name, get_estimator(name), pair, m.x_a, m.x_b)
+    assert est.ok, est.error
+    assert np.linalg.matrix_rank(est.F, tol=1e-6 * np.abs(est.F).max()) <= 3
+    assert est.inliers.shape == (len(m),) and est.inliers.sum() >= 7
+    if name in ("lmeds", "ransac", "magsac"):
+        assert np.median(sampson_distance(est.F, m.x_a[est.inliers], m.x_b[est.inliers])) < 0.5
+        assert np.median(sed(pair.F_gt, m.x_a[est.inliers], m.x_b[est.inliers])) < 3.0
+
+
+@pytest.mark.parametrize("name", ["ransac", "magsac", "lmeds"])
+def test_robust_estimators_are_seeded(temporal, name):
+    pair, m = temporal
+    runs = [run_estimator(name, get_estimator(name, RobustConfig(seed=s)), pair, m.x_a, m.x_b).F for s in (3, 3)]
+    np.testing.assert_array_equal(runs[0], runs[1])
+
+
+def test_fewer_than_eight_matches_is_an_estimator_error(temporal):
+    pair, m = temporal
+    est = run_estimator("magsac", get_estimator("magsac"), pair, m.x_a[:6], m.x_b[:6])
+    assert not est.ok and "at least 8 matches, got 6" in est.error
+
+
+def test_user_function_plugs_in_and_failures_are_caught(tmp_path, temporal, monkeypatch):
+    pair, m = temporal
+    (tmp_path / "my_estimators.py").write_text(
+        "import cv2, numpy as np\n"
+        "def eight(pair, x_a, x_b):\n"
+        "    return cv2.findFundamentalMat(x_a, x_b, cv2.FM_8POINT)[0]\n"
+        "def nan_f(pair, x_a, x_b):\n"
+        "    return np.full((3, 3), np.nan)\n"
+        "def broken(pair, x_a, x_b):\n"
+        "    raise RuntimeError('solver diverged')\n"
+    )
+    monkeypatch.syspath_prepend(str(tmp_path))
+    sys.modules.pop("my_estimators", None)
+    ok = run_estimator("u", get_estimator("my_estimators:eight"), pair, m.x_a, m.x_b)
+    ref = run_estimator("8point", get_estimator("8point"), pair, m.x_a, m.x_b)
+    assert ok.ok and ok.inliers is None and f_distance(ok.F, ref.F) < 1e-9
+    assert "no valid 3x3 F" in run_estimator("n", get_estimator("my_estimators:nan_f"), pair, m.x_a, m.x_b).error
+    assert "RuntimeError: solver diverged" in run_estimator("b", get_estimator("my_estimators:broken"), pair, m.x_a, m.x_b).error
+    assert display_name("my_estimators:eight") == "eight"
+    assert display_name("deep:runs/x/best.pt") == "deep-best"
+
+
+def test_unknown_estimators_are_usage_errors():
+    with pytest.raises(FvizError, match="unknown.*magsac"):
+        get_estimator("magsack")
+    with pytest.raises(FvizError, match="cannot import module 'nope'"):
+        get_estimator("nope:f")
+    with pytest.raises(FvizError, match="has no function 'nothing'"):
+        get_estimator("fviz.geometry:nothing")
+    with pytest.raises(FvizError, match="--threshold"):
+        RobustConfig(threshold=0)
+    with pytest.raises(FvizError, match="--features"):
+        FeatureConfig(kind="surf")
