@@ -1,0 +1,193 @@
+"""``fviz inspect pair`` end to end on the real samples: JSON, recording contents, bad input."""
+
+import json
+import sys
+
+import cv2
+import numpy as np
+import pytest
+from rerun.chunk import RrdReader
+
+from cli_util import assert_one_line_error, run_fviz
+from fviz.geometry import epipoles, symmetric_epipolar_distance
+from fviz.record import layout as L
+
+ESTIMATORS = ("8point", "ransac", "magsac")
+
+
+def read_entities(path):
+    """entity path -> {column: value of its (only) row}, static and temporal chunks merged."""
+    out = {}
+    for ch in RrdReader(path).stream().to_chunks():
+        rb = ch.to_record_batch()
+        assert rb.num_rows == 1
+        cols = [c for c in rb.schema.names if c != "log_time"]
+        out.setdefault(ch.entity_path.lstrip("/"), {}).update({c: rb.column(c).to_pylist()[0] for c in cols})
+    return out
+
+
+def col(entity, name):
+    """The values of a component."""
+    return entity[name]
+
+
+def one(batch, name):
+    """A mono component's single value."""
+    (value,) = col(batch, name)
+    return value
+
+
+@pytest.fixture(scope="module")
+def inspected(kitti_root, tmp_path_factory):
+    out = tmp_path_factory.mktemp("inspect") / "pair.rrd"
+    args = ["inspect", "pair", "--kitti-root", kitti_root, "--sequence", "00", "--pair", "temporal", "--frame", "5",
+            "--lines", "25", "--out", out, "--json"]
+    for e in ESTIMATORS:
+        args += ["--estimator", e]
+    proc = run_fviz(*args)
+    assert proc.returncode == 0, proc.stderr
+    return json.loads(proc.stdout), read_entities(out), out
+
+
+def test_json_describes_pair_gt_and_every_estimator(inspected):
+    doc, _, out = inspected
+    assert doc["pair"]["frame_a"] == 5 and doc["pair"]["frame_b"] == 6 and doc["pair"]["size_a"] == [1241, 376]
+    assert doc["norm"] == "fbn" and doc["recording"] == str(out)
+    names = [e["name"] for e in doc["estimators"]]
+    assert names == ["gt", *ESTIMATORS]
+    for e in doc["estimators"]:
+        assert e["error"] is None and np.asarray(e["F"]).shape == (3, 3)
+        assert {"epi_abs", "epi_sqr", "sed_median", "sampson_median", "inlier_ratio", "f_dist", "epipole_err_deg"} <= set(e["metrics"])
+    assert doc["n_matches"] >= doc["n_eval"] > 100
+
+
+def test_recording_holds_jpeg_images_and_a_blueprint(inspected):
+    doc, ent, out = inspected
+    for v in ("a", "b"):
+        b = ent[L.image(v)]
+        assert one(b, "EncodedImage:media_type") == "image/jpeg"
+        img = cv2.imdecode(np.frombuffer(bytes(one(b, "EncodedImage:blob")), np.uint8), cv2.IMREAD_UNCHANGED)
+        assert img.shape[:2] == (376, 1241)
+    assert RrdReader(out).blueprints(), "the layout must be stored with the recording"
+
+
+def test_keypoint_residuals_match_an_independent_computation(inspected):
+    doc, ent, _ = inspected
+    for e in doc["estimators"]:
+        name, F = e["name"], np.array(e["F"])
+        a, b = ent[L.est("a", name, "keypoints")], ent[L.est("b", name, "keypoints")]
+        xa, xb = np.array(col(a, "Points2D:positions")), np.array(col(b, "Points2D:positions"))
+        assert len(xa) == len(xb) == doc["n_matches"]
+        res = np.array(col(a, "residual_px"))
+        np.testing.assert_allclose(res, symmetric_epipolar_distance(F, xa, xb), rtol=1e-4, atol=1e-3)
+        np.testing.assert_array_equal(col(a, "Points2D:class_ids"), L.residual_classes(res))
+        assert col(a, "match_id") == list(range(doc["n_matches"]))
+        assert sum(col(a, "inlier")) == e["metrics"]["n_inliers"]
+
+
+def test_epipolar_lines_are_clipped_and_pass_through_the_epipole(inspected):
+    doc, ent, _ = inspected
+    w, h = doc["pair"]["size_a"]
+    for e in doc["estimators"]:
+        F = np.array(e["F"])
+        for v, ep in zip(("a", "b"), epipoles(F)):
+            strips = np.array(col(ent[L.est(v, e["name"], "epilines")], "LineStrips2D:strips"))
+            assert 0 < len(strips) <= 25
+            assert strips[..., 0].min() >= -0.5 - 1e-3 and strips[..., 0].max() <= w - 0.5 + 1e-3
+            assert strips[..., 1].min() >= -0.5 - 1e-3 and strips[..., 1].max() <= h - 0.5 + 1e-3
+            for p, q in strips:  # every epipolar line goes through the epipole
+                line = np.cross(np.r_[p, 1], np.r_[q, 1])
+                assert abs(line @ ep) / (np.linalg.norm(line[:2]) * np.linalg.norm(ep)) < 1e-4
+
+
+def test_metrics_scalars_and_summary_agree_with_json(inspected):
+    doc, ent, _ = inspected
+    names = [e["name"] for e in doc["estimators"]]
+    assert col(ent[L.metric("sed_median")], "SeriesLines:names") == names
+    values = col(ent[L.metric("sed_median")], "Scalars:scalars")
+    np.testing.assert_allclose(values, [e["metrics"]["sed_median"] for e in doc["estimators"]], rtol=1e-6)
+    md = one(ent[L.SUMMARY], "TextDocument:text")
+    assert "FBN" in md and "means" in md and doc["pair"]["name"] in md
+    hist = one(ent[L.histogram_plot("magsac")], "BarChart:values")
+    assert hist["shape"] == [L.HIST_BINS] and sum(hist["buffer"]) == doc["n_matches"]
+
+
+def test_epipoles_are_labelled(inspected):
+    _, ent, _ = inspected
+    labels = col(ent[L.epipoles("a")], "Points2D:labels")
+    assert len(labels) == 4 and all(lbl.startswith("e_") for lbl in labels)
+
+
+def test_stereo_epipole_at_infinity_is_marked_at_the_border(kitti_root, tmp_path):
+    out = tmp_path / "s.rrd"
+    proc = run_fviz("inspect", "pair", "--kitti-root", kitti_root, "--sequence", "00", "--pair", "stereo", "-e", "magsac", "--out", out)
+    assert proc.returncode == 0, proc.stderr
+    ent = read_entities(out)
+    labels = col(ent[L.epipoles("a")], "Points2D:labels")
+    pos = np.array(col(ent[L.epipoles("a")], "Points2D:positions"))
+    assert "infinity" in labels[0]  # rectified stereo: the ground-truth epipole is at infinity
+    assert pos[0][0] in (pytest.approx(-0.5, abs=1e-3), pytest.approx(1240.5, abs=1e-3))
+    assert L.epipoles("a") + "/outside" in ent
+    assert not list(tmp_path.glob(".*tmp*")), "no temporary file is left behind"
+
+
+def test_failed_estimator_is_reported_and_the_others_still_run(kitti_root, tmp_path):
+    (tmp_path / "bad_est.py").write_text("def boom(pair, x_a, x_b):\n    raise RuntimeError('no convergence')\n")
+    out = tmp_path / "f.rrd"
+    proc = run_fviz("inspect", "pair", "--kitti-root", kitti_root, "--sequence", "00", "--pair", "temporal",
+                    "-e", "bad_est:boom", "-e", "magsac", "--out", out, "--json", cwd=tmp_path)
+    assert proc.returncode == 1
+    assert proc.stderr.strip() == "error: estimator boom: RuntimeError: no convergence"
+    doc = json.loads(proc.stdout)
+    boom, mag = doc["estimators"][1], doc["estimators"][2]
+    assert boom["error"] == "RuntimeError: no convergence" and boom["F"] is None
+    assert mag["error"] is None and mag["F"] is not None
+    ent = read_entities(out)
+    assert "no convergence" in one(ent[L.error("boom")], "TextLog:text")
+    assert L.est("a", "boom", "keypoints") not in ent and L.est("a", "magsac", "keypoints") in ent
+
+
+def test_too_few_matches_is_a_data_error_but_still_recorded(kitti_root, tmp_path):
+    out = tmp_path / "few.rrd"
+    proc = run_fviz("inspect", "pair", "--kitti-root", kitti_root, "--sequence", "00", "--max-keypoints", "8",
+                    "-e", "magsac", "--out", out, "--json")
+    assert proc.returncode == 2
+    assert proc.stderr.splitlines()[-1].startswith("error: only ") and "000000.png" in proc.stderr
+    assert "at least 8 matches" in json.loads(proc.stdout)["estimators"][1]["error"]
+    assert out.is_file()
+
+
+@pytest.mark.parametrize(
+    "args,fragments",
+    [
+        (["--sequence", "07"], ["--sequence 07", "no odometry layout"]),
+        (["--sequence", "00", "--frame", "50"], ["--frame 50 out of range", "0..49"]),
+        (["--sequence", "00", "--frame", "49", "--pair", "temporal"], ["--frame + --step 50"]),
+        (["--sequence", "00", "--frame", "1"], ["missing image", "image_1/000001.png"]),
+        (["--drive", "2011_09_26_drive_0001", "--pair", "temporal"], ["temporal pairs need ground-truth poses"]),
+        (["--drive", "2011_09_26_drive_0002"], ["missing drive folder"]),
+        (["--sequence", "00", "-e", "magsack"], ["--estimator 'magsack': unknown"]),
+        (["--sequence", "00", "--cams", "0-1"], ["--cams '0-1'"]),
+        (["--sequence", "00", "--pair", "sideways"], ["--pair 'sideways'"]),
+        (["--sequence", "00", "--norm", "l1"], ["--norm 'l1'"]),
+        (["--sequence", "00", "--features", "surf"], ["--features 'surf'"]),
+    ],
+)
+def test_bad_input_is_one_line_and_exit_2(kitti_root, tmp_path, args, fragments):
+    proc = run_fviz("inspect", "pair", "--kitti-root", kitti_root, *args, "--out", tmp_path / "x.rrd")
+    assert_one_line_error(proc, 2, *fragments)
+    assert not (tmp_path / "x.rrd").exists()
+
+
+def test_missing_root_and_unknown_layout(tmp_path):
+    assert_one_line_error(run_fviz("inspect", "pair", "--kitti-root", tmp_path / "nope"), 2, "not a folder")
+    assert_one_line_error(run_fviz("inspect", "pair", "--kitti-root", tmp_path), 2, "no KITTI layout")
+
+
+def test_help_is_light():
+    code = "import sys, fviz.cli; print(sorted(m for m in ('torch', 'rerun', 'cv2', 'numpy') if m in sys.modules))"
+    import subprocess
+
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
+    assert out == "[]"
+    assert run_fviz("--help").returncode == 0

@@ -1,0 +1,72 @@
+"""The paper's per-pair protocol, checked against direct computations."""
+
+import numpy as np
+import pytest
+
+from fviz.estimators import get_estimator
+from fviz.evaluate import GT_NAME, evaluate_pair
+from fviz.geometry import algebraic, normalize
+from fviz.geometry import symmetric_epipolar_distance as sed
+
+
+@pytest.fixture(scope="module")
+def result_and_pair(odometry):
+    pair = odometry.pair(3, "temporal")
+    ests = [(n, get_estimator(n)) for n in ("8point", "magsac")]
+    return evaluate_pair(pair, ests), pair
+
+
+def test_evaluation_set_is_gt_consistent_matches(result_and_pair):
+    r, pair = result_and_pair
+    m = r.matches
+    np.testing.assert_array_equal(r.eval_mask, sed(pair.F_gt, m.x_a, m.x_b) < 2.0)
+    assert r.n_eval == r.eval_mask.sum() and 0 < r.n_eval <= r.n_matches
+
+
+def test_epi_metrics_are_means_of_the_normalized_bilinear_form(result_and_pair):
+    r, pair = result_and_pair
+    m = r.matches
+    xa, xb = m.x_a[r.eval_mask], m.x_b[r.eval_mask]
+    for est in r.estimators:
+        for norm in ("fbn", "abs", "etr"):
+            res = np.array([abs(np.r_[b, 1] @ normalize(est.F, norm) @ np.r_[a, 1]) for a, b in zip(xa, xb)])
+            assert est.metrics[f"epi_abs_{norm}"] == pytest.approx(res.mean(), rel=1e-9)
+            assert est.metrics[f"epi_sqr_{norm}"] == pytest.approx((res**2).mean(), rel=1e-9)
+        assert est.metrics["epi_abs"] == est.metrics["epi_abs_fbn"]  # the default norm
+        # ABS and FBN differ by the ratio of the two norms of F
+        ratio = np.linalg.norm(est.F) / np.abs(est.F).max()
+        assert est.metrics["epi_abs_abs"] == pytest.approx(ratio * est.metrics["epi_abs_fbn"], rel=1e-9)
+
+
+def test_ground_truth_row(result_and_pair):
+    r, pair = result_and_pair
+    gt = r.get(GT_NAME)
+    assert gt.metrics["f_dist"] == pytest.approx(0, abs=1e-12)
+    assert gt.metrics["epipole_err_deg"] == pytest.approx(0, abs=1e-6)
+    assert gt.metrics["sed_median"] < 2.0 and gt.metrics["sed_median"] == pytest.approx(
+        np.median(sed(pair.F_gt, r.matches.x_a[r.eval_mask], r.matches.x_b[r.eval_mask]))
+    )
+
+
+def test_robust_beats_plain_eight_point_on_real_matches(result_and_pair):
+    r, _ = result_and_pair
+    assert r.get("magsac").metrics["sed_median"] < r.get("8point").metrics["sed_median"]
+    assert r.get("magsac").metrics["inlier_ratio"] > 0.8
+    assert r.get("magsac").metrics["n_inliers"] == r.get("magsac").inliers.sum()
+
+
+def test_etr_on_rectified_stereo_is_nan_with_a_note(odometry):
+    r = evaluate_pair(odometry.pair(0, "stereo"), [("magsac", get_estimator("magsac"))], norm="etr")
+    assert any("ETR is undefined" in n for n in r.notes)
+    assert np.isnan(r.get(GT_NAME).metrics["epi_abs"])
+    assert np.isfinite(r.get(GT_NAME).metrics["epi_abs_fbn"])
+
+
+def test_json_and_rows_carry_the_same_numbers(result_and_pair):
+    r, _ = result_and_pair
+    doc = r.to_dict()
+    rows = r.rows()
+    assert [e["name"] for e in doc["estimators"]] == [row["estimator"] for row in rows] == ["gt", "8point", "magsac"]
+    for e, row in zip(doc["estimators"], rows):
+        assert e["metrics"]["sed_median"] == row["sed_median"]
+    assert doc["norm"] == "fbn" and "means" in doc["metric_note"]
