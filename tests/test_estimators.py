@@ -106,3 +106,17 @@ def test_unknown_estimators_are_usage_errors():
         RobustConfig(threshold=0)
     with pytest.raises(FvizError, match="--features"):
         FeatureConfig(kind="surf")
+
+
+@pytest.mark.parametrize("kind", ["sift", "orb"])
+def test_matching_equals_opencv_brute_force(temporal, kind):
+    import cv2
+
+    pair = temporal[0]
+    cfg = FeatureConfig(kind=kind)
+    fa, fb = detect(pair.image_a, cfg), detect(pair.image_b, cfg)
+    bf = cv2.BFMatcher(cv2.NORM_L2 if kind == "sift" else cv2.NORM_HAMMING)
+    back = {m.queryIdx: m.trainIdx for m in bf.match(fb.descriptors, fa.descriptors)}
+    ref = {(m.queryIdx, m.trainIdx) for m, n in bf.knnMatch(fa.descriptors, fb.descriptors, k=2)
+           if m.distance < 0.8 * n.distance and back.get(m.trainIdx) == m.queryIdx}
+    assert set(map(tuple, match(fa, fb, cfg).idx)) == ref

@@ -55,6 +55,10 @@ def pair(
     synthetic: o.Synthetic = False,
 ) -> None:
     """Run estimators on one pair and record images, keypoints, epipolar lines, epipoles, residuals and metrics."""
+    import threading
+
+    # rerun takes ~0.5 s to import: let it load while the features are computed.
+    threading.Thread(target=__import__, args=("rerun",), daemon=True).start()
     from fviz.errors import FvizError
     from fviz.estimators.registry import DEFAULT_ESTIMATORS
     from fviz.evaluate import MIN_MATCHES, evaluate_pair

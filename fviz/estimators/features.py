@@ -71,30 +71,44 @@ def detect(image: np.ndarray, cfg: FeatureConfig = FeatureConfig()) -> Features:
     return Features(pts, desc)
 
 
-def match(fa: Features, fb: Features, cfg: FeatureConfig = FeatureConfig()) -> Matches:
-    """Nearest neighbours a -> b with Lowe's ratio test, optionally kept only when mutual."""
+def _nearest_two(da: np.ndarray, db: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """For each row of da: its nearest and second-nearest rows of db (indices, distances),
+    and for each row of db its nearest row of da. Float descriptors: one L2 distance matrix (BLAS);
+    binary ones: OpenCV's Hamming matcher."""
     import cv2
 
-    empty = Matches(np.zeros((0, 2), int), np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0))
+    if da.dtype == np.float32:
+        d2 = (da * da).sum(1)[:, None] + (db * db).sum(1)[None, :] - 2.0 * (da @ db.T)
+        np.maximum(d2, 0, out=d2)
+        two = np.argpartition(d2, 1, axis=1)[:, :2]
+        rows = np.arange(len(da))[:, None]
+        two = np.take_along_axis(two, np.argsort(d2[rows, two], axis=1), 1)
+        dist = np.sqrt(d2[rows, two])
+        return two[:, 0], dist[:, 0], dist[:, 1], d2.argmin(0)
+    bf = cv2.BFMatcher(cv2.NORM_HAMMING)
+    knn = [m if len(m) == 2 else None for m in bf.knnMatch(da, db, k=2)]
+    best = np.array([m[0].trainIdx if m else -1 for m in knn])
+    d1 = np.array([m[0].distance if m else np.inf for m in knn], float)
+    d2 = np.array([m[1].distance if m else np.inf for m in knn], float)
+    back = np.full(len(db), -1)
+    for m in bf.match(db, da):
+        back[m.queryIdx] = m.trainIdx
+    return best, d1, d2, back
+
+
+def match(fa: Features, fb: Features, cfg: FeatureConfig = FeatureConfig()) -> Matches:
+    """Nearest neighbours a -> b with Lowe's ratio test, optionally kept only when mutual; best first."""
     if fa.descriptors is None or fb.descriptors is None or len(fa.keypoints) < 2 or len(fb.keypoints) < 2:
-        return empty
-    norm = cv2.NORM_L2 if fa.descriptors.dtype == np.float32 else cv2.NORM_HAMMING
-    bf = cv2.BFMatcher(norm)
-    knn = bf.knnMatch(fa.descriptors, fb.descriptors, k=2)
-    pairs = [(m[0].queryIdx, m[0].trainIdx, m[0].distance) for m in knn if len(m) == 2 and m[0].distance < cfg.ratio * m[1].distance]
-    if not pairs:
-        return empty
-    ia, ib, dist = (np.array(v) for v in zip(*pairs))
+        return Matches(np.zeros((0, 2), int), np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0))
+    best, d1, d2, back = _nearest_two(fa.descriptors, fb.descriptors)
+    keep = (best >= 0) & (d1 < cfg.ratio * d2)
     if cfg.mutual:
-        back = bf.match(fb.descriptors, fa.descriptors)
-        best_a_for_b = np.full(len(fb.keypoints), -1)
-        best_a_for_b[[m.queryIdx for m in back]] = [m.trainIdx for m in back]
-        keep = best_a_for_b[ib] == ia
-        ia, ib, dist = ia[keep], ib[keep], dist[keep]
-    order = np.argsort(dist, kind="stable")  # best first (the 7-point solver takes the first 7)
-    ia, ib, dist = ia[order], ib[order], dist[order]
-    idx = np.stack([ia, ib], 1).astype(int)
-    return Matches(idx, fa.keypoints[ia], fb.keypoints[ib], dist.astype(np.float64))
+        keep &= back[np.maximum(best, 0)] == np.arange(len(best))
+    ia = np.flatnonzero(keep)
+    order = np.argsort(d1[ia], kind="stable")  # best first (the 7-point solver takes the first 7)
+    ia = ia[order]
+    ib = best[ia]
+    return Matches(np.stack([ia, ib], 1), fa.keypoints[ia], fb.keypoints[ib], d1[ia].astype(np.float64))
 
 
 class FeatureCache:
@@ -115,3 +129,19 @@ class FeatureCache:
             self._items.pop(next(iter(self._items)))
         self._items[key] = feats
         return feats
+
+    def get_pair(self, key_a: str, image_a: np.ndarray, key_b: str, image_b: np.ndarray) -> tuple[Features, Features]:
+        """Both images' features; two missing ones are detected in parallel (OpenCV releases the GIL)."""
+        if key_a in self._items or key_b in self._items or key_a == key_b:
+            return self.get(key_a, image_a), self.get(key_b, image_b)
+        from concurrent.futures import ThreadPoolExecutor
+
+        with ThreadPoolExecutor(2) as pool:
+            fb = pool.submit(detect, image_b, self.cfg)
+            fa = detect(image_a, self.cfg)
+            fb = fb.result()
+        self.misses += 2
+        self._items.update({key_a: fa, key_b: fb})
+        while len(self._items) > self.max_items:
+            self._items.pop(next(iter(self._items)))
+        return fa, fb
