@@ -161,13 +161,18 @@ class KittiSequence:
         """Load a pair with its ground truth (x_b^T F_gt x_a = 0, pixels)."""
         return self.load(self.pair_id(frame, kind, step, cams))
 
-    def load(self, pid: PairId) -> Pair:
+    def ground_truth(self, pid: PairId) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(K_a, K_b, R, t, F_gt) of a pair from calibration and poses alone: no image is read."""
         E_a = self.extrinsics(pid.cam_a, pid.frame_a, pid.frame_a)
         E_b = self.extrinsics(pid.cam_b, pid.frame_b, pid.frame_a)
         K_a, _ = _decompose(self.projections[pid.cam_a])
         K_b, _ = _decompose(self.projections[pid.cam_b])
         T_ab = E_b @ np.linalg.inv(E_a)
         F = fundamental_from_projections(K_a @ E_a[:3], K_b @ E_b[:3])
+        return K_a, K_b, T_ab[:3, :3], T_ab[:3, 3], F
+
+    def load(self, pid: PairId) -> Pair:
+        K_a, K_b, R, t, F = self.ground_truth(pid)
         path_a, path_b = self.image_path(pid.cam_a, pid.frame_a), self.image_path(pid.cam_b, pid.frame_b)
         image_a, image_b = read_image(path_a), read_image(path_b)
         if image_a.shape[:2] != image_b.shape[:2]:
@@ -176,7 +181,7 @@ class KittiSequence:
                 f"{path_b} is {image_b.shape[1]}x{image_b.shape[0]}"
             )
         return Pair(
-            id=pid, image_a=image_a, image_b=image_b, K_a=K_a, K_b=K_b, R=T_ab[:3, :3], t=T_ab[:3, 3], F_gt=F,
+            id=pid, image_a=image_a, image_b=image_b, K_a=K_a, K_b=K_b, R=R, t=t, F_gt=F,
             gt_accuracy_px=GT_ACCURACY_PX[pid.kind], extra={"path_a": str(path_a), "path_b": str(path_b)},
         )
 
