@@ -1,0 +1,116 @@
+"""Benchmark ``fviz eval`` (a script, not a test).
+
+1. Speed: the temporal pairs (step 1) of KITTI sample sequence 00 with SIFT + MAGSAC++, timed as
+   ``fviz eval`` (a subprocess, start-up and report writing included) against a plain OpenCV loop
+   that recomputes the features of both images for every pair (SIFT, BFMatcher knn + ratio test,
+   cv2.findFundamentalMat USAC_MAGSAC), in the same run. Target: fviz >= 2x faster.
+2. Memory: peak RSS (max over the run's processes, ``getrusage(RUSAGE_CHILDREN)`` of a fresh
+   subprocess per size) of ``fviz eval`` on a small and a 10x larger selection: synthetic pairs when
+   ``fviz.data.synthetic`` is there, else KITTI pairs. Target: ratio <= 1.2.
+
+    python benchmarks/bench_eval.py [--kitti-root DIR] [--workers N] [--small 100 --large 1000] [--skip-memory]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+PROJECT = Path(__file__).resolve().parents[1]
+DEFAULT_ROOT = Path(os.environ.get("FVIZ_KITTI_ROOT", PROJECT.parent / "shared" / "data" / "kitti"))
+
+
+def plain_opencv(root: Path, frames: int, max_keypoints: int = 2000, ratio: float = 0.8) -> float:
+    """Seconds of the naive loop: every pair detects both its images again."""
+    import cv2
+    import numpy as np
+
+    images = root / "odometry" / "dataset" / "sequences" / "00" / "image_0"
+    sift, bf = cv2.SIFT_create(nfeatures=max_keypoints), cv2.BFMatcher(cv2.NORM_L2)
+    t0 = time.perf_counter()
+    for f in range(frames - 1):
+        a = cv2.imread(str(images / f"{f:06d}.png"), cv2.IMREAD_GRAYSCALE)
+        b = cv2.imread(str(images / f"{f + 1:06d}.png"), cv2.IMREAD_GRAYSCALE)
+        ka, da = sift.detectAndCompute(a, None)
+        kb, db = sift.detectAndCompute(b, None)
+        good = [m for m, n in bf.knnMatch(da, db, k=2) if m.distance < ratio * n.distance]
+        xa = np.float64([ka[m.queryIdx].pt for m in good])
+        xb = np.float64([kb[m.trainIdx].pt for m in good])
+        cv2.findFundamentalMat(xa, xb, cv2.USAC_MAGSAC, 1.0, 0.999, 10000)
+    return time.perf_counter() - t0
+
+
+def fviz_eval(args: list[str]) -> tuple[float, float, dict]:
+    """(wall seconds, peak RSS in MiB over the run's processes, outcome numbers) of one ``fviz eval``."""
+    code = (
+        "import resource, subprocess, sys, time, json\n"
+        "t0 = time.perf_counter()\n"
+        "p = subprocess.run([sys.executable, '-m', 'fviz', 'eval', *sys.argv[1:]], capture_output=True, text=True)\n"
+        "dt = time.perf_counter() - t0\n"
+        "rss = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024\n"
+        "print(json.dumps({'rc': p.returncode, 'seconds': dt, 'rss_mib': rss, 'err': p.stderr[-2000:]}))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True, check=True, cwd=PROJECT)
+    res = json.loads(out.stdout)
+    if res["rc"] != 0:
+        raise SystemExit(f"fviz eval failed ({res['rc']}): {res['err']}")
+    line = next((ln for ln in res["err"].splitlines() if ln.startswith("eval:")), "")
+    return res["seconds"], res["rss_mib"], {"summary": line.strip()}
+
+
+def speed(root: Path, workers: int) -> None:
+    frames = 50
+    with tempfile.TemporaryDirectory() as tmp:
+        fviz_s, _, info = fviz_eval(["--kitti-root", str(root), "--sequence", "00", "--pair", "temporal", "--step", "1",
+                                     "--frames", f"0:{frames}", "-e", "magsac", "--workers", str(workers),
+                                     "--no-progress", "--out-dir", f"{tmp}/run"])
+    plain_s = plain_opencv(root, frames)
+    print(f"speed, {frames - 1} temporal pairs of sequence 00, SIFT (2000) + MAGSAC++, {os.cpu_count()} cores:")
+    print(f"  fviz eval --workers {workers}: {fviz_s:7.2f} s   ({info['summary']})")
+    print(f"  plain OpenCV loop:     {plain_s:7.2f} s   (features recomputed per pair, one process)")
+    print(f"  ratio plain / fviz:    {plain_s / fviz_s:7.2f} x   (target >= 2)")
+
+
+def memory(root: Path, workers: int, small: int, large: int) -> None:
+    try:
+        import fviz.data.synthetic  # noqa: F401
+
+        sel = lambda n: ["--synthetic", "--seeds", f"0:{n}", "--pair", "temporal"]  # noqa: E731
+        what = "synthetic temporal pairs"
+    except ImportError:
+        small, large = 10, 49
+        sel = lambda n: ["--kitti-root", str(root), "--sequence", "00", "--pair", "temporal", "--frames", f"0:{n + 1}"]  # noqa: E731
+        what = "KITTI temporal pairs (no synthetic source)"
+    rss = {}
+    for n in (small, large):
+        with tempfile.TemporaryDirectory() as tmp:
+            sec, rss[n], info = fviz_eval([*sel(n), "-e", "8point", "--max-keypoints", "500", "--workers", str(workers),
+                                           "--no-progress", "--out-dir", f"{tmp}/run"])
+        print(f"  {n:5d} {what}: peak RSS {rss[n]:7.1f} MiB, {sec:7.1f} s")
+    print(f"  ratio {large}/{small}: {rss[large] / rss[small]:.3f} (target <= 1.2)")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--kitti-root", type=Path, default=DEFAULT_ROOT)
+    ap.add_argument("--workers", type=int, default=os.cpu_count())
+    ap.add_argument("--small", type=int, default=100)
+    ap.add_argument("--large", type=int, default=1000)
+    ap.add_argument("--skip-memory", action="store_true")
+    ap.add_argument("--skip-speed", action="store_true")
+    a = ap.parse_args()
+    if not a.skip_speed:
+        speed(a.kitti_root, a.workers)
+    if not a.skip_memory:
+        print("memory:")
+        memory(a.kitti_root, a.workers, a.small, a.large)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,215 @@
+"""``fviz eval``: every pair of a selection, N estimators, one run folder; ``fviz merge``: join shards.
+
+Selection: ``--kitti-root`` with ``--sequence`` / ``--drive``, ``--pair`` and ``--step`` (repeatable or
+comma lists), ``--cams``, ``--frames START:END`` (END exclusive, either side may be left out); or
+``--synthetic --seeds A:B``. Outputs in ``--out-dir`` (see :mod:`fviz.runner`): results.jsonl (the
+source of truth, appended per pair), metrics.csv / .parquet, summary.md, eval.rrd. eval.rrd holds
+metric series, summaries and errors per pair; ``--full`` adds every pair's images, keypoints,
+epipolar lines and plots (as ``inspect``), which for a whole KITTI sequence means gigabytes.
+
+The shared run options are declared once here (:data:`RUN_PARAMS`) and added to any command by
+:func:`run_command` (``triage`` uses them too).
+"""
+
+from __future__ import annotations
+
+import inspect
+import os
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Annotated, Any, Callable, Optional
+
+import typer
+
+from fviz.cli import options as o
+from fviz.errors import FvizError
+
+Pairs = Annotated[Optional[list[str]], typer.Option("--pair", help="stereo and/or temporal (repeatable or comma list; default stereo).")]
+Steps = Annotated[Optional[list[str]], typer.Option("--step", help="Frame steps of temporal pairs (repeatable or comma list; default 1).")]
+Frames = Annotated[Optional[str], typer.Option("--frames", help="Frame range START:END of camera 0, END exclusive (default: all).")]
+Seeds = Annotated[Optional[str], typer.Option("--seeds", help="With --synthetic: scene seeds A:B (A .. B-1), one pair per seed.")]
+OutDir = Annotated[Path, typer.Option("--out-dir", help="Run folder: results.jsonl, metrics.csv/.parquet, summary.md, eval.rrd.")]
+Workers = Annotated[Optional[int], typer.Option("--workers", help="Worker processes (default: CPU count).")]
+Resume = Annotated[bool, typer.Option("--resume", help="Continue the run in --out-dir; finished pairs are not recomputed.")]
+Shard = Annotated[Optional[str], typer.Option("--shard", help="i/n: run only the i-th of n contiguous blocks of pairs (join with fviz merge).")]
+Full = Annotated[bool, typer.Option("--full", help="Record every pair's images, keypoints and plots in eval.rrd (large).")]
+Progress = Annotated[bool, typer.Option("--progress/--no-progress", help="Progress bar with ETA on stderr.")]
+
+
+def _run_options(
+    kitti_root: o.KittiRoot = None,
+    sequence: o.Sequence_ = None,
+    drive: o.Drive = None,
+    pair_kind: Pairs = None,
+    step: Steps = None,
+    cams: o.Cams = None,
+    frames: Frames = None,
+    synthetic: o.Synthetic = False,
+    seeds: Seeds = None,
+    estimator: o.Estimators = None,
+    features: o.Features = "sift",
+    max_keypoints: o.MaxKeypoints = 2000,
+    ratio: o.Ratio = 0.8,
+    mutual: o.Mutual = True,
+    threshold: o.Threshold = 1.0,
+    confidence: o.Confidence = 0.999,
+    max_iters: o.MaxIters = 10000,
+    seed: o.Seed = 0,
+    norm: o.Norm = "fbn",
+    eval_threshold: o.EvalThreshold = 2.0,
+    out_dir: OutDir = Path("runs/eval"),
+    workers: Workers = None,
+    shard: Shard = None,
+    full: Full = False,
+    progress: Progress = True,
+) -> None:
+    """The options shared by eval and triage (their signature is reused, never called)."""
+
+
+RUN_PARAMS = list(inspect.signature(_run_options, eval_str=True).parameters.values())
+SELECTION_FLAGS = ("kitti_root", "sequence", "drive", "pair_kind", "step", "cams", "frames", "synthetic", "seeds")
+
+
+@dataclass
+class RunArgs:
+    """The parsed shared options: a run configuration and how to execute it."""
+
+    values: dict[str, Any]
+
+    def __getattr__(self, name: str) -> Any:
+        try:
+            return self.values[name]
+        except KeyError:
+            raise AttributeError(name) from None
+
+    @property
+    def selects(self) -> bool:
+        """Whether any selection flag was given (else a run in --out-dir is reused as configured)."""
+        return any(self.values[k] not in (None, False) for k in SELECTION_FLAGS)
+
+    def config(self, default_estimators: tuple[str, ...]):
+        """The RunConfig of the flags, or, without selection flags, the run already in --out-dir."""
+        from dataclasses import replace
+
+        from fviz.runner import RunConfig, parse_shard, read_config
+
+        existing = None if self.selects else read_config(self.out_dir)
+        if existing is not None:
+            if self.estimator:
+                existing = replace(existing, options=replace(existing.options, names=tuple(self.estimator)))
+            return replace(existing, shard=parse_shard(self.shard) if self.shard else existing.shard)
+        opts = o.EstimatorOptions(tuple(self.estimator or default_estimators), self.features, self.max_keypoints,
+                                  self.ratio, self.mutual, self.threshold, self.confidence, self.max_iters, self.seed)
+        return RunConfig(self.selection(), opts, self.norm, self.eval_threshold, self.full,
+                         parse_shard(self.shard) if self.shard else None)
+
+    def selection(self):
+        from fviz.runner import Selection
+
+        root = None
+        if not self.synthetic:
+            root = os.path.abspath(Path(o.kitti_root(self.kitti_root)).expanduser())
+        return Selection(
+            kitti_root=root, sequence=self.sequence, drive=self.drive,
+            kinds=tuple(split_list(self.pair_kind, "--pair")) or ("stereo",),
+            steps=tuple(int_list(self.step, "--step")) or (1,),
+            cams=o.parse_cams(self.cams), frames=parse_range(self.frames, "--frames", both=False),
+            synthetic=self.synthetic, seeds=parse_range(self.seeds, "--seeds", both=True) if self.seeds else None,
+        )
+
+
+def split_list(values: list[str] | None, flag: str) -> list[str]:
+    """Repeated and comma-separated values, flattened."""
+    out = [v.strip() for text in values or [] for v in text.split(",")]
+    if any(not v for v in out):
+        raise FvizError(f"{flag} {','.join(values)!r}: empty item")
+    return out
+
+
+def int_list(values: list[str] | None, flag: str) -> list[int]:
+    items = split_list(values, flag)
+    try:
+        return [int(v) for v in items]
+    except ValueError:
+        raise FvizError(f"{flag} {','.join(items)!r}: expected integers") from None
+
+
+def parse_range(text: str | None, flag: str, both: bool) -> tuple[int | None, int | None]:
+    """``A:B`` -> (A, B), B exclusive; without ``both`` either side may be empty (None)."""
+    if text is None:
+        return (None, None)
+    parts = text.split(":")
+    try:
+        if len(parts) != 2:
+            raise ValueError
+        a, b = (int(p) if p.strip() else None for p in parts)
+    except ValueError:
+        raise FvizError(f"{flag} {text!r}: expected START:END (integers, END exclusive)") from None
+    if both and (a is None or b is None):
+        raise FvizError(f"{flag} {text!r}: give both ends, A:B")
+    if (a is not None and a < 0) or (b is not None and b < 0) or (a is not None and b is not None and a >= b):
+        raise FvizError(f"{flag} {text!r}: need 0 <= START < END")
+    return a, b
+
+
+def run_command(fn: Callable[..., None]) -> Callable[..., None]:
+    """A typer command taking the shared run options plus ``fn``'s own; ``fn(args: RunArgs, **own)``."""
+    own = [p for p in inspect.signature(fn, eval_str=True).parameters.values() if p.name != "args"]
+    names = {p.name for p in RUN_PARAMS}
+
+    def command(**kwargs):
+        args = RunArgs({k: kwargs.pop(k) for k in list(kwargs) if k in names})
+        return fn(args, **kwargs)
+
+    command.__signature__ = inspect.Signature(RUN_PARAMS + own)
+    command.__name__, command.__doc__ = fn.__name__, fn.__doc__
+    return command
+
+
+def print_outcome(outcome, what: str = "eval") -> None:
+    """One summary line and the report paths; on an interrupted run, how to finish it (exit 130)."""
+    err = sys.stderr
+    print(f"{what}: {outcome.total} pairs ({outcome.reused} already done, {outcome.computed} evaluated now, "
+          f"{outcome.failed} failed, {outcome.detections} feature detections) -> {outcome.out_dir}", file=err)
+    for path in outcome.paths.values():
+        print(f"  {path}", file=err)
+    if outcome.interrupted:
+        print(f"interrupted: reports cover the finished pairs; finish with: fviz {what} --out-dir {outcome.out_dir} --resume",
+              file=err)
+        raise typer.Exit(130)
+
+
+def _default_estimators() -> tuple[str, ...]:
+    from fviz.estimators.registry import DEFAULT_ESTIMATORS
+    from fviz.runner import CONSTANT
+
+    return (*DEFAULT_ESTIMATORS, CONSTANT)
+
+
+def eval_(args: RunArgs, resume: Resume = False) -> None:
+    """Run estimators on every pair of a selection: metrics.csv/.parquet, summary.md and eval.rrd in --out-dir.
+
+    Default estimators: inspect's (8point, ransac, magsac) plus `constant`, the mean ground-truth F of the
+    selection. Without selection flags, --resume continues the run in --out-dir as it was configured.
+    """
+    from fviz.runner import run_eval
+
+    config = args.config(_default_estimators())
+    outcome = run_eval(config, args.out_dir, args.workers, resume, args.progress)
+    print_outcome(outcome)
+
+
+def merge(
+    dirs: Annotated[list[Path], typer.Argument(help="Run folders (shards) to merge.")],
+    out_dir: Annotated[Path, typer.Option("--out-dir", help="New run folder for the merged results.")],
+) -> None:
+    """Merge the run folders of `fviz eval --shard i/n` jobs into one run with all reports."""
+    from fviz.runner import merge_runs
+
+    print_outcome(merge_runs(dirs, out_dir), "merge")
+
+
+def register(app: typer.Typer) -> None:
+    app.command("eval")(run_command(eval_))
+    app.command("merge")(merge)

@@ -1,0 +1,94 @@
+"""``fviz triage``: rank a run's pairs worst first with tagged failure causes; ``fviz compare``: two estimators
+pair by pair. Triage takes eval's options (:func:`fviz.cli.eval.run_command`) and evaluates only what the
+run in --out-dir lacks."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+
+from fviz.cli.eval import RunArgs, print_outcome, run_command
+
+By = Annotated[str, typer.Option("--by", help="Estimator whose metric ranks the pairs.")]
+Metric = Annotated[str, typer.Option("--metric", help="Metric to rank by (worst first), e.g. sed_median, f_dist, inlier_ratio.")]
+Top = Annotated[int, typer.Option("--top", help="Pairs listed in triage.md and recorded in triage.rrd.")]
+
+
+def triage(args: RunArgs, by: By = "magsac", metric: Metric = "sed_median", top: Top = 20) -> None:
+    """Rank pairs by a metric of one estimator, worst first, tag likely causes; write triage.md and triage.rrd.
+
+    Runs eval first with resume semantics (pairs already in --out-dir are reused) and always includes the
+    `constant` baseline. Without selection flags, the run in --out-dir is triaged as it was configured.
+    """
+    from fviz.cli.eval import _default_estimators
+    from fviz.triage import run_triage
+
+    config = args.config(_default_estimators())
+    result = run_triage(config, args.out_dir, by, metric, top, args.workers, args.progress)
+    print_outcome(result.eval, "triage")
+    _print_ranking(result, metric, top)
+
+
+def _print_ranking(result, metric: str, top: int) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    t = Table(title=f"worst {min(top, len(result.ranked))} of {len(result.ranked)} pairs by {metric}")
+    for c in ("rank", "pair", metric, "tags"):
+        t.add_column(c, justify="right" if c in ("rank", metric) else "left")
+    for r in result.ranked[:top]:
+        t.add_row(str(r.rank), r.key, "failed" if r.failed else f"{r.value:.4g}", ", ".join(x for x, _ in r.tags))
+    console = Console(width=max(Console().width, 140))
+    console.print(t)
+    console.print(f"{result.markdown}\n{result.recording}")
+
+
+def compare(
+    a: Annotated[Optional[str], typer.Option("--a", help="Estimator a (with --out-dir).")] = None,
+    b: Annotated[Optional[str], typer.Option("--b", help="Estimator b (with --out-dir).")] = None,
+    out_dir: Annotated[Optional[Path], typer.Option("--out-dir", help="Run folder holding both estimators; compare.md goes here.")] = None,
+    run_a: Annotated[Optional[Path], typer.Option("--run-a", help="Run folder a (with --run-b and --estimator).")] = None,
+    run_b: Annotated[Optional[Path], typer.Option("--run-b", help="Run folder b.")] = None,
+    estimator: Annotated[Optional[str], typer.Option("--estimator", "-e", help="The estimator compared across --run-a / --run-b.")] = None,
+    metric: Metric = "sed_median",
+    fail_threshold: Annotated[float, typer.Option("--fail-threshold", help="A metric worse than this is a failure (px for sed_median).")] = 2.0,
+    tie: Annotated[float, typer.Option("--tie", help="Differences up to this are ties.")] = 0.0,
+) -> None:
+    """Wins and losses of estimator a against b per pair, and the pairs where only one of them fails."""
+    from fviz.compare import Side, compare as run_compare, write_compare
+    from fviz.errors import FvizError
+
+    if run_a or run_b:
+        if not (run_a and run_b and estimator) or a or b:
+            raise FvizError("compare: give --run-a D1 --run-b D2 --estimator NAME, or --out-dir D --a NAME --b NAME")
+        sides, dest = (Side(run_a, estimator), Side(run_b, estimator)), out_dir or run_a
+    else:
+        if not (out_dir and a and b):
+            raise FvizError("compare: give --out-dir D --a NAME --b NAME, or --run-a D1 --run-b D2 --estimator NAME")
+        sides, dest = (Side(out_dir, a), Side(out_dir, b)), out_dir
+    c = run_compare(*sides, metric=metric, fail_threshold=fail_threshold, tie=tie)
+    path = write_compare(c, dest)
+    _print_comparison(c, path)
+
+
+def _print_comparison(c, path: Path) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    from fviz.compare import summary_rows
+
+    t = Table(title=f"{c.a.label} vs {c.b.label}: {c.metric}")
+    t.add_column("")
+    t.add_column("count", justify="right")
+    for what, n in summary_rows(c):
+        t.add_row(what, n)
+    Console().print(t)
+    print(path, file=sys.stderr)
+
+
+def register(app: typer.Typer) -> None:
+    app.command("triage")(run_command(triage))
+    app.command("compare")(compare)

@@ -1,0 +1,147 @@
+"""Compare two estimators pair by pair: wins, losses, ties, and the pairs where exactly one fails.
+
+Sides come from the metrics.csv of ``fviz eval`` runs: two estimators of one run, or one estimator
+of two runs (pairs matched by name). A side *fails* on a pair when the pair or the estimator errored,
+the metric is NaN, or the metric is worse than ``fail_threshold`` (above it; below it for metrics
+where higher is better). Wins and losses count the pairs where both sides have a value; a difference
+within ``tie`` is a tie.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from fviz.errors import FvizError
+from fviz.triage import HIGHER_IS_BETTER
+
+COMPARE_FILE = "compare.md"
+FAIL_THRESHOLD = 2.0  # px: sed_median above this is a failure (the paper's evaluation threshold)
+
+
+@dataclass(frozen=True)
+class Side:
+    run: Path
+    estimator: str
+
+    @property
+    def label(self) -> str:
+        return f"{self.estimator} ({self.run})"
+
+
+@dataclass
+class Comparison:
+    a: Side
+    b: Side
+    metric: str
+    fail_threshold: float
+    wins: list[str] = field(default_factory=list)  # a better
+    losses: list[str] = field(default_factory=list)  # b better
+    ties: list[str] = field(default_factory=list)
+    only_a_fails: list[str] = field(default_factory=list)
+    only_b_fails: list[str] = field(default_factory=list)
+    both_fail: list[str] = field(default_factory=list)
+    missing: list[str] = field(default_factory=list)  # pairs of one side only
+    values: dict[str, tuple[float, float]] = field(default_factory=dict)
+
+
+def read_side(side: Side, metric: str) -> dict[str, tuple[float, str]]:
+    """pair name -> (metric value or NaN, error message or "") of one estimator in a run's metrics.csv."""
+    path = Path(side.run) / "metrics.csv"
+    if not path.is_file():
+        raise FvizError(f"{side.run}: no metrics.csv (run fviz eval --out-dir {side.run} first)")
+    out: dict[str, tuple[float, str]] = {}
+    with open(path, newline="") as f:
+        reader = csv.DictReader(f)
+        if metric not in (reader.fieldnames or []):
+            raise FvizError(f"--metric {metric!r}: not a column of {path}")
+        estimators = set()
+        for row in reader:
+            estimators.add(row["estimator"])
+            if row["estimator"] == side.estimator:
+                v = float(row[metric]) if row[metric] not in ("", None) else math.nan
+                out[row["name"]] = (v, row.get("pair_error") or row.get("error") or "")
+    if not out:
+        raise FvizError(f"estimator {side.estimator!r}: not in {path} (it has {', '.join(sorted(estimators))})")
+    return out
+
+
+def _fails(v: float, error: str, threshold: float, higher_better: bool) -> bool:
+    return bool(error) or not math.isfinite(v) or (v < threshold if higher_better else v > threshold)
+
+
+def compare(a: Side, b: Side, metric: str = "sed_median", fail_threshold: float = FAIL_THRESHOLD,
+            tie: float = 0.0) -> Comparison:
+    """Pair-by-pair comparison of side a against side b."""
+    va, vb = read_side(a, metric), read_side(b, metric)
+    hb = metric in HIGHER_IS_BETTER
+    c = Comparison(a, b, metric, fail_threshold)
+    c.missing = sorted(set(va) ^ set(vb))
+    for name in [n for n in va if n in vb]:
+        (x, ea), (y, eb) = va[name], vb[name]
+        c.values[name] = (x, y)
+        fa, fb = _fails(x, ea, fail_threshold, hb), _fails(y, eb, fail_threshold, hb)
+        if fa and fb:
+            c.both_fail.append(name)
+        elif fa:
+            c.only_a_fails.append(name)
+        elif fb:
+            c.only_b_fails.append(name)
+        if math.isfinite(x) and math.isfinite(y) and not ea and not eb:
+            d = (y - x) if not hb else (x - y)  # > 0: a better
+            (c.wins if d > tie else c.losses if d < -tie else c.ties).append(name)
+    return c
+
+
+def _median_diff(c: Comparison) -> float:
+    import numpy as np
+
+    d = [x - y for x, y in c.values.values() if math.isfinite(x) and math.isfinite(y)]
+    return float(np.median(d)) if d else math.nan
+
+
+def summary_rows(c: Comparison) -> list[tuple[str, str]]:
+    """(what, count) lines of the comparison, as printed and written."""
+    return [
+        ("pairs compared", str(len(c.values))),
+        (f"{c.a.estimator} better (wins)", str(len(c.wins))),
+        (f"{c.b.estimator} better (losses)", str(len(c.losses))),
+        ("ties", str(len(c.ties))),
+        (f"only {c.a.estimator} fails", str(len(c.only_a_fails))),
+        (f"only {c.b.estimator} fails", str(len(c.only_b_fails))),
+        ("both fail", str(len(c.both_fail))),
+        (f"median {c.metric} a - b", f"{_median_diff(c):.4g}"),
+        ("pairs in one run only", str(len(c.missing))),
+    ]
+
+
+def compare_markdown(c: Comparison) -> str:
+    worse = "below" if c.metric in HIGHER_IS_BETTER else "above"
+    lines = [
+        "# fviz compare",
+        "",
+        f"a = `{c.a.label}`, b = `{c.b.label}`, metric `{c.metric}`. A side fails on a pair when it errors, "
+        f"has no value, or its {c.metric} is {worse} {c.fail_threshold:g}. Wins and losses count pairs where both have a value.",
+        "",
+        "| | count |",
+        "|---|---|",
+        *[f"| {what} | {n} |" for what, n in summary_rows(c)],
+    ]
+    for title, names in ((f"Only {c.a.estimator} fails", c.only_a_fails), (f"Only {c.b.estimator} fails", c.only_b_fails)):
+        lines += ["", f"## {title}", "", f"| pair | a | b |", "|---|---|---|"]
+        lines += [f"| `{n}` | {_v(c, n, 0)} | {_v(c, n, 1)} |" for n in names] or ["| (none) | | |"]
+    return "\n".join(lines) + "\n"
+
+
+def _v(c: Comparison, name: str, i: int) -> str:
+    v = c.values[name][i]
+    return f"{v:.4g}" if math.isfinite(v) else "failed"
+
+
+def write_compare(c: Comparison, out_dir: Path) -> Path:
+    path = Path(out_dir) / COMPARE_FILE
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(compare_markdown(c))
+    return path

@@ -1,0 +1,141 @@
+"""``fviz triage`` on the real samples: ranking, tags against independent computations, the constant-F
+baseline, the rank timeline of triage.rrd, reuse of an eval run."""
+
+import csv
+import json
+import math
+
+import numpy as np
+import pytest
+from rerun.chunk import RrdReader
+from typer.testing import CliRunner
+
+from cli_util import assert_one_line_error, run_fviz
+from fviz.cli import app
+from fviz.data.pair import PairId
+from fviz.geometry import describe_epipole, epipoles, f_distance
+from fviz.record import layout as L
+from fviz.triage import TRIAGE_RRD, rank_pairs
+
+pytestmark = pytest.mark.kitti
+
+SMALL = ("--max-keypoints", "400", "--no-progress", "--workers", "1")
+
+
+def invoke(*args):
+    r = CliRunner().invoke(app, [str(a) for a in args], catch_exceptions=False)
+    assert r.exit_code == 0, r.output
+    return r
+
+
+def read_csv(path):
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def jsonl(path):
+    return [json.loads(line) for line in open(path)]
+
+
+def pid_of(ref):
+    return PairId(**{k: v for k, v in ref.items() if k != "name"})
+
+
+@pytest.fixture(scope="module")
+def temporal(kitti_root, tmp_path_factory):
+    """Frames 0..11 of sequence 00 (KITTI's poses are off near frames 7-10): eval first, then triage
+    without selection flags, which must reuse the run."""
+    out = tmp_path_factory.mktemp("triage") / "run"
+    invoke("eval", "--kitti-root", kitti_root, "--sequence", "00", "--pair", "temporal", "--frames", "0:12",
+           "-e", "ransac", "-e", "magsac", "-e", "constant", *SMALL, "--out-dir", out)
+    before = (out / "results.jsonl").read_bytes()
+    r = invoke("triage", "--out-dir", out, "--top", "5", "--no-progress")
+    return out, before, r.output
+
+
+def test_triage_reuses_the_eval_run(temporal):
+    out, before, output = temporal
+    assert (out / "results.jsonl").read_bytes() == before
+    assert "0 evaluated now" in output
+
+
+def test_worst_pair_has_the_largest_metric(temporal):
+    out, _, _ = temporal
+    rows = [r for r in read_csv(out / "metrics.csv") if r["estimator"] == "magsac"]
+    worst = max(rows, key=lambda r: float(r["sed_median"]))
+    ranked = rank_pairs(jsonl(out / "results.jsonl"), "magsac", "sed_median")
+    assert ranked[0].key == worst["name"] and ranked[0].value == float(worst["sed_median"])
+    values = [r.value for r in ranked]
+    assert values == sorted(values, reverse=True)
+    md = (out / "triage.md").read_text()
+    assert f"| 0 | `{worst['name']}` |" in md
+    frame = int(worst["frame_a"])
+    assert f"fviz inspect pair --kitti-root" in md and f"--frame {frame} --pair temporal --step 1 --cams 0,0" in md
+    assert md.count("fviz inspect pair") == 5
+
+
+def test_epipole_tag_matches_the_ground_truth_epipole(temporal, odometry):
+    out, _, _ = temporal
+    for r in rank_pairs(jsonl(out / "results.jsonl"), "magsac", "sed_median"):
+        pair = odometry.load(pid_of(r.ref))
+        e_a, e_b = epipoles(pair.F_gt)
+        inside = describe_epipole(e_a, *pair.size_a).inside or describe_epipole(e_b, *pair.size_b).inside
+        assert ("epipole-inside" in [t for t, _ in r.tags]) == inside
+        assert inside  # forward motion: the epipole is in the image
+
+
+def test_gt_suspect_tags_where_inliers_disagree_with_the_ground_truth(temporal):
+    """The README: KITTI's poses give 2-3 px errors near frames 7-10; MAGSAC's inliers there sit off F_gt."""
+    out, _, _ = temporal
+    tagged = {r.key for r in rank_pairs(jsonl(out / "results.jsonl"), "magsac", "sed_median")
+              if "gt-suspect" in [t for t, _ in r.tags]}
+    assert tagged and all(7 <= int(k.split("/f")[1][:6]) <= 10 for k in tagged)
+
+
+def test_triage_recording_steps_through_the_worst_pairs_first(temporal):
+    out, _, _ = temporal
+    ranked = rank_pairs(jsonl(out / "results.jsonl"), "magsac", "sed_median")[:5]
+    info, images = {}, set()
+    for ch in RrdReader(str(out / TRIAGE_RRD)).stream().to_chunks():
+        rb = ch.to_record_batch().to_pydict()
+        if ch.entity_path.lstrip("/") == L.PAIR_INFO:
+            info.update({rank: (pair, text[0]) for rank, pair, text in zip(rb["rank"], rb["pair"], rb["TextDocument:text"])})
+        if ch.entity_path.lstrip("/") == L.image("a"):
+            images.update(rb["rank"])
+    assert sorted(info) == list(range(5)) and images == set(range(5))
+    assert info[0] == (ranked[0].index, ranked[0].key)
+    assert all(info[r.rank] == (r.index, r.key) for r in ranked)
+
+
+def test_constant_baseline_is_exact_on_raw_stereo_pairs(kitti_root, raw_drive, tmp_path):
+    """Every stereo pair of one recording day shares one F: the constant baseline scores perfectly."""
+    out = tmp_path / "raw"
+    invoke("triage", "--kitti-root", kitti_root, "--drive", "2011_09_26_drive_0001", "--pair", "stereo",
+           "--frames", "0:4", "-e", "magsac", "--features", "orb", *SMALL, "--top", "2", "--out-dir", out)
+    rows = [r for r in read_csv(out / "metrics.csv") if r["estimator"] == "constant"]
+    assert len(rows) == 4
+    for r in rows:
+        assert float(r["f_dist"]) < 1e-9
+        F_gt = raw_drive.ground_truth(PairId("raw", r["sequence"], "stereo", int(r["frame_a"]), int(r["frame_b"]), 0, 1))[4]
+        F_const = np.array(json.loads((out / "run.json").read_text())["constant_F"]).reshape(3, 3)
+        assert f_distance(F_const, F_gt) < 1e-9
+    tags = [t for r in rank_pairs(jsonl(out / "results.jsonl"), "magsac", "sed_median") for t, _ in r.tags]
+    assert "epipole-inside" not in tags  # rectified stereo: epipoles at infinity
+
+
+def test_failed_pairs_rank_first_with_the_error_tag(kitti_root, tmp_path):
+    out = tmp_path / "run"
+    invoke("triage", "--kitti-root", kitti_root, "--sequence", "00", "--pair", "stereo", "--frames", "0:2",
+           "-e", "magsac", *SMALL, "--out-dir", out)
+    ranked = rank_pairs(jsonl(out / "results.jsonl"), "magsac", "sed_median")
+    assert ranked[0].failed and ranked[0].key.endswith("f000001c0-f000001c1")
+    assert [t for t, _ in ranked[0].tags] == ["error"] and "missing image" in ranked[0].tags[0][1]
+    assert not ranked[1].failed and math.isfinite(ranked[1].value)
+
+
+@pytest.mark.parametrize("args, fragment", [(("--by", "nope"), "--by"), (("--top", "0"), "--top"),
+                                            (("--metric", "nope"), "--metric")])
+def test_bad_input_is_one_line_exit_2(kitti_root, tmp_path, args, fragment):
+    r = run_fviz("triage", "--kitti-root", kitti_root, "--sequence", "00", "--pair", "temporal", "--frames", "0:2",
+                 "-e", "magsac", "--features", "orb", "--no-progress", *args, "--out-dir", tmp_path / "run")
+    assert_one_line_error(r, 2, fragment)
