@@ -29,18 +29,36 @@ def web_command(path: Path, host: str = "127.0.0.1", port: int = 9876, web_port:
     return cmd, url
 
 
+def _stop_group(proc: subprocess.Popen, timeout: float = 10) -> None:
+    """SIGTERM to the process group of ``proc`` (started with ``start_new_session``), SIGKILL if it lingers."""
+    import os
+    import signal
+
+    for sig in (signal.SIGTERM, signal.SIGKILL):
+        try:
+            os.killpg(proc.pid, sig)
+        except ProcessLookupError:
+            return
+        try:
+            proc.wait(timeout=timeout)
+            return
+        except subprocess.TimeoutExpired:
+            continue
+
+
 def serve_web(path: Path, host: str = "127.0.0.1", port: int = 9876, web_port: int = 9090) -> None:
     """Serve the web viewer until Ctrl-C, printing its URL."""
     if not Path(path).is_file():
         raise FvizError(f"no such recording: {path}")
     cmd, url = web_command(Path(path), host, port, web_port)
-    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    # Own process group: ``rerun`` is a Python wrapper around the real binary, and stopping only the
+    # wrapper would leave the binary serving; the whole group is stopped instead.
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True)
     print(f"web viewer: {url}  (Ctrl-C to stop)", flush=True)
     try:
         _, err = proc.communicate()
     except KeyboardInterrupt:
-        proc.terminate()
-        proc.wait(timeout=10)
+        _stop_group(proc)
         return
     if proc.returncode:
         last = (err or "").strip().splitlines()[-1:] or ["no message"]

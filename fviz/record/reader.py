@@ -42,7 +42,7 @@ class Item:
     index:   the value on the main timeline (int)
     name:    the pair's name from ``pair/info`` (None when not logged)
     metrics: {metric: {estimator: value}} from ``metrics/{metric}``; NaN where an estimator failed
-    errors:  {estimator: message} from ``errors/{estimator}``
+    errors:  {estimator: message} from ``errors/{estimator}`` (the estimator's error, as in ``inspect --json``)
     times:   {timeline: value} of the other sequence timelines on those rows (e.g. ``{"pair": 7}`` in triage)
     """
 
@@ -90,8 +90,9 @@ class RecordingSummary:
 
     def item(self, name_or_index: str | int) -> Item:
         """The item named so (pair name) or at that index; KeyError if absent."""
+        by_name = isinstance(name_or_index, str)
         for it in self.items:
-            if it.name == name_or_index if isinstance(name_or_index, str) else it.index == name_or_index:
+            if (it.name if by_name else it.index) == name_or_index:
                 return it
         raise KeyError(name_or_index)
 
@@ -116,8 +117,11 @@ def _layout(path: str) -> str:
 
 
 def _one_line(exc: BaseException) -> str:
+    """The exception's message on one line, without the reader's own "Failed to read RRD file at X:"."""
+    import re
+
     text = " ".join(str(exc).split()) or type(exc).__name__
-    return text
+    return re.sub(r"^Failed to read RRD file at .*?: ", "", text)
 
 
 def open_rrd(path: str | Path):
@@ -142,21 +146,20 @@ def open_rrd(path: str | Path):
             reader.store()  # reads the footer's manifest; raises when there is none
         except FvizError:
             raise
-        except ValueError as exc:
-            if "footer" in str(exc) or "manifest" in str(exc) or "legacy" in str(exc):
-                raise FvizError(f"{p}: truncated recording (no footer: cut mid-write?)") from None
-            raise FvizError(f"{p}: cannot read the recording ({_one_line(exc)})") from None
-        except Exception as exc:  # RuntimeError from the Rust reader: not an RRD, frame past the end, I/O
+        except Exception as exc:  # ValueError / RuntimeError from the Rust reader: not an RRD, cut, I/O
             msg = _one_line(exc)
-            if "exceeds file size" in msg or "unexpected end" in msg.lower():
+            if "footer" in msg or "manifest" in msg:
+                raise FvizError(f"{p}: truncated recording (no footer: cut mid-write?)") from None
+            if "exceeds file size" in msg or "unexpected end" in msg.lower() or "eof" in msg.lower():
                 raise FvizError(f"{p}: truncated recording (cut mid-write?): {msg}") from None
             raise FvizError(f"{p}: not a readable Rerun recording: {msg}") from None
     return reader
 
 
-def _chunks(path: str | Path, content: str | list[str] | None = None) -> Iterator[tuple[str, bool, Any]]:
-    """(entity path as in the layout, is_static, pyarrow RecordBatch) of the first recording's chunks."""
-    reader = open_rrd(path)
+def _chunks(path: str | Path, content: str | list[str] | None = None, reader=None) -> Iterator[tuple[str, bool, Any]]:
+    """(entity path as in the layout, is_static, pyarrow RecordBatch) of the first recording's chunks
+    (only those under ``content``, Rerun entity path filter expressions, when given)."""
+    reader = reader or open_rrd(path)
     stream = reader.stream()
     if content is not None:
         stream = stream.filter(content=content)
@@ -236,7 +239,7 @@ def column(path: str | Path, entity: str, name: str, timeline: str | None = None
     static: list = []
     rows: list[tuple[int, int, Any]] = []  # (has no time, time, value)
     seen_cols: set[str] = set()
-    for _, is_static, rb in _chunks(path, _entity(entity)):
+    for _, is_static, rb in _chunks(path, _entity(entity), reader):
         seen_cols.update(n for n in rb.schema.names if n != _ROW_ID)
         if name not in rb.schema.names:
             continue
@@ -303,7 +306,7 @@ def read_recording(path: str | Path, timeline: str | None = None) -> RecordingSu
             yield i, ix
 
     content = [_entity(L.metric("**")), _entity(L.PAIR_INFO), _entity(L.error("**"))]
-    for ent, is_static, rb in _chunks(p, content):
+    for ent, is_static, rb in _chunks(p, content, reader):
         cols = rb.schema.names
         if ent.startswith(metric_prefix):
             key = ent[len(metric_prefix):]
@@ -326,7 +329,9 @@ def read_recording(path: str | Path, timeline: str | None = None) -> RecordingSu
             col = rb.column(_LOG_TEXT).to_pylist()
             for i, ix in rows(rb):
                 if col[i]:
-                    errors.setdefault(ix, {})[est] = col[i][0]
+                    msg = col[i][0]
+                    prefix = f"{est} failed: "  # how the writer words it
+                    errors.setdefault(ix, {})[est] = msg[len(prefix):] if msg.startswith(prefix) else msg
 
     metrics = sorted(set(names) | {k for per in values.values() for k in per})
     estimators: dict[str, None] = {}

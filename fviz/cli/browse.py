@@ -1,0 +1,109 @@
+"""``fviz open`` (a recording in Rerun's native or web viewer) and ``fviz summary`` (its pairs and metrics,
+no viewer). Both work on any fviz recording: ``inspect``, ``eval`` and ``triage`` files."""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+# Metric columns of the summary table, in this order when present (others follow, sorted).
+KEY_METRICS = ("epi_abs", "epi_sqr", "sed_median", "sampson_median", "inlier_ratio", "f_dist", "epipole_err_deg")
+
+Recording = Annotated[Path, typer.Argument(help="A .rrd written by fviz (inspect, eval or triage).", show_default=False)]
+
+
+def open_recording(
+    path: Recording,
+    web: Annotated[bool, typer.Option("--web", help="Serve the web viewer (until Ctrl-C) and print its URL.")] = False,
+    bind: Annotated[str, typer.Option("--bind", help="Address the web viewer's servers listen on; 0.0.0.0 exposes them to the network.")] = "127.0.0.1",
+    port: Annotated[int, typer.Option("--port", help="Port of the recording (gRPC) server, with --web.")] = 9876,
+    web_port: Annotated[int, typer.Option("--web-port", help="Port of the web viewer's page, with --web.")] = 9090,
+) -> None:
+    """Open a recording in Rerun's native viewer, or with --web in the browser (served on 127.0.0.1)."""
+    import signal
+
+    from fviz.errors import FvizError
+    from fviz.record.reader import open_rrd
+    from fviz.viewer import serve_web, spawn_native
+
+    open_rrd(path)  # one-line error on a missing, foreign or truncated file
+    for name, value in (("--port", port), ("--web-port", web_port)):
+        if not 0 < value < 65536:
+            raise FvizError(f"{name} {value}: not a port (1-65535)")
+    if not web:
+        spawn_native(path)
+        print(f"native viewer started on {path}")
+        return
+    if port == web_port:
+        raise FvizError(f"--port and --web-port are both {port}: they need two ports")
+    if bind not in ("127.0.0.1", "localhost", "::1"):
+        print(f"warning: --bind {bind}: the viewer and the recording are reachable from other machines", file=sys.stderr)
+
+    def _stop(signum, frame):  # SIGTERM / SIGHUP stop the viewer's server too, like Ctrl-C (serve_web)
+        raise KeyboardInterrupt
+
+    for sig in (signal.SIGTERM, signal.SIGHUP):
+        signal.signal(sig, _stop)
+    serve_web(path, bind, port, web_port)
+
+
+def _fmt(v: float | None) -> str:
+    if v is None or (isinstance(v, float) and math.isnan(v)):
+        return "-"
+    return f"{v:.4g}"
+
+
+def summary(
+    path: Recording,
+    as_json: Annotated[bool, typer.Option("--json", help="Print the summary as JSON on stdout (NaN -> null).")] = False,
+) -> None:
+    """Print the pairs and metrics stored in a recording: one row per pair and estimator (no viewer)."""
+    from rich.console import Console
+    from rich.table import Table
+
+    from fviz.record.reader import read_recording
+
+    s = read_recording(path)
+    if as_json:
+        json.dump(s.to_dict(), sys.stdout, indent=2)
+        sys.stdout.write("\n")
+        return
+    cols = [m for m in KEY_METRICS if m in s.metrics] + [m for m in s.metrics if m not in KEY_METRICS]
+    other_times = sorted({t for it in s.items for t in it.times})
+    t = Table(title=f"{path}  ({s.app_id}; {len(s.items)} item(s) on timeline {s.timeline or '-'}; "
+                    f"blueprint {'stored' if s.has_blueprint else 'none'})")
+    index_header = "#" if s.timeline in (None, "pair") else s.timeline
+    t.add_column(index_header, justify="right")
+    for name in other_times:
+        t.add_column(f"{name} #", justify="right")
+    t.add_column("pair", overflow="fold", min_width=12)
+    t.add_column("estimator", overflow="fold")
+    for c in cols:
+        t.add_column(c, justify="right")
+    any_errors = any(it.errors for it in s.items)
+    if any_errors:
+        t.add_column("error", overflow="fold", style="red")
+    for it in s.items:
+        ests = it.estimators() or ["-"]
+        for k, est in enumerate(ests):
+            head = [str(it.index), *(str(it.times.get(n, "")) for n in other_times), it.name or "-"] if k == 0 \
+                else ["", *[""] * len(other_times), ""]
+            vals = [_fmt(it.metrics.get(c, {}).get(est)) for c in cols]
+            tail = [it.errors.get(est, "")] if any_errors else []
+            t.add_row(*head, est, *vals, *tail, end_section=k == len(ests) - 1)
+    console = Console()
+    if not console.is_terminal:  # piped: never wrap or cut, whatever the width
+        console = Console(width=max(Console(width=10_000).measure(t).maximum, 80))
+    console.print(t)
+    if not s.items:
+        console.print(f"no pairs in {path} (entities: {', '.join(s.entity_paths) or 'none'})")
+
+
+def register(app: typer.Typer) -> None:
+    app.command("open")(open_recording)
+    app.command("summary")(summary)

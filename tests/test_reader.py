@@ -1,0 +1,138 @@
+"""fviz.record.reader on real recordings: one made by ``fviz inspect pair`` on the KITTI samples, and a
+triage-like one (``rank`` and ``pair`` timelines, a failing estimator) written with the recording writer."""
+
+from __future__ import annotations
+
+import math
+import pytest
+
+from browser import inspect_recording
+from fviz.errors import FvizError
+from fviz.record import layout as L
+from fviz.record import reader as R
+from fviz.record.writer import SCALAR_METRICS
+
+pytestmark = pytest.mark.kitti
+
+
+@pytest.fixture(scope="module")
+def inspected(kitti_root, tmp_path_factory):
+    """(recording, the --json of the same run)."""
+    return inspect_recording(kitti_root, tmp_path_factory.mktemp("reader") / "pair.rrd")
+
+
+def _same(a, b) -> bool:
+    """Equal floats, NaN/None meaning "no value" on both sides."""
+    none_a = a is None or (isinstance(a, float) and math.isnan(a))
+    none_b = b is None or (isinstance(b, float) and math.isnan(b))
+    return none_a and none_b or (not none_a and not none_b and a == b)
+
+
+def test_read_inspect_recording(inspected):
+    path, doc = inspected
+    s = R.read_recording(path)
+    assert s.app_id == "fviz-inspect"
+    assert s.timeline == "pair" and s.timelines == ("pair",)
+    assert s.has_blueprint
+    assert s.estimators == tuple(e["name"] for e in doc["estimators"])
+    assert set(s.metrics) == set(SCALAR_METRICS)
+    assert [it.index for it in s.items] == [0]
+    item = s.item(doc["pair"]["name"])
+    assert item is s.item(0)
+    assert item.errors == {} and item.times == {}
+    for e in doc["estimators"]:
+        for key in SCALAR_METRICS:
+            assert _same(item.metrics[key][e["name"]], e["metrics"].get(key)), (key, e["name"])
+    for ent in (L.image("a"), L.image("b"), L.PAIR_INFO, L.SUMMARY, L.metric("epi_abs"),
+                L.est("a", "ransac", "keypoints"), L.residual_plot("gt"), "/"):
+        assert ent in s.entity_paths
+    assert s.entity_paths == tuple(R.entity_paths(path))
+    assert R.timelines(path) == ["pair"]
+    d = s.to_dict()
+    assert d["path"] == str(path) and d["items"][0]["name"] == doc["pair"]["name"]
+
+
+def test_helpers(inspected):
+    path, doc = inspected
+    assert R.text(path, L.PAIR_INFO) == [doc["pair"]["name"]]
+    assert R.text(path, L.SUMMARY)[0].startswith(f"# {doc['pair']['name']}")
+    names = [e["name"] for e in doc["estimators"]]
+    assert R.column(path, "metrics/epi_abs", "SeriesLines:names") == [names]
+    # static row first, then the one temporal row; leading "/" accepted
+    assert R.column(path, "/metrics/epi_abs", "pair") == [0]
+    assert R.column(path, "metrics/epi_abs", "Scalars:scalars") == [[e["metrics"]["epi_abs"] for e in doc["estimators"]]]
+    residuals = R.column(path, L.est("a", "ransac", "keypoints"), "residual_px")
+    assert len(residuals) == 1 and len(residuals[0]) == doc["n_matches"]
+    assert "EncodedImage:blob" in R.columns(path, L.image("a"))
+    with pytest.raises(FvizError, match="no entity 'nope/x'"):
+        R.column(path, "nope/x", "Scalars:scalars")
+    with pytest.raises(FvizError, match="has no column 'nope'.*EncodedImage:blob"):
+        R.column(path, L.image("a"), "nope")
+
+
+def test_triage_like_recording(odometry, tmp_path):
+    """Any timeline: items on ``rank`` (preferred), the ``pair`` index kept in ``times``; failures as NaN."""
+    from fviz.evaluate import evaluate_pair
+    from fviz.estimators import get_estimator
+    from fviz.record.writer import RecordingWriter, log_pair, log_static
+
+    def broken(pair, x_a, x_b):
+        raise RuntimeError("no luck")
+
+    ests = [("8point", get_estimator("8point")), ("broken", broken)]
+    names = ["gt", "8point", "broken"]
+    path = tmp_path / "triage.rrd"
+    frames = {0: 5, 1: 2}  # rank -> pair index (frame)
+    results = {}
+    with RecordingWriter(path, "fviz-triage") as w:
+        log_static(w.rec, names)
+        for rank, frame in frames.items():
+            pair = odometry.pair(frame, "temporal")
+            res = evaluate_pair(pair, ests)
+            results[rank] = (pair, res)
+            w.rec.set_time("rank", sequence=rank)
+            log_pair(w.rec, frame, pair, res)
+    s = R.read_recording(path)
+    assert s.app_id == "fviz-triage" and not s.has_blueprint
+    assert s.timeline == "rank" and set(s.timelines) == {"rank", "pair"}
+    assert s.estimators == tuple(names)
+    assert [it.index for it in s.items] == [0, 1]
+    for it in s.items:
+        pair, res = results[it.index]
+        assert it.name == pair.id.name
+        assert it.times == {"pair": frames[it.index]}
+        assert it.errors == {"broken": res.get("broken").error} == {"broken": "RuntimeError: no luck"}
+        assert math.isnan(it.metrics["epi_abs"]["broken"])
+        assert it.metrics["sed_median"]["8point"] == res.get("8point").metrics["sed_median"]
+        assert it.estimators() == names
+    assert s.to_dict()["items"][0]["metrics"]["epi_abs"]["broken"] is None
+    # the same file read on its other timeline: items are pairs 2 and 5
+    by_pair = R.read_recording(path, timeline="pair")
+    assert [(it.index, it.times) for it in by_pair.items] == [(2, {"rank": 1}), (5, {"rank": 0})]
+    with pytest.raises(FvizError, match="no timeline 'frame'"):
+        R.read_recording(path, timeline="frame")
+
+
+@pytest.mark.parametrize("case", ["missing", "directory", "text", "empty", "half", "no-footer"])
+def test_bad_files(inspected, tmp_path, case):
+    path, _ = inspected
+    bad = tmp_path / f"{case}.rrd"
+    data = path.read_bytes()
+    if case == "directory":
+        bad.mkdir()
+    elif case == "text":
+        bad.write_text("hello, not a recording\n")
+    elif case == "empty":
+        bad.write_bytes(b"")
+    elif case == "half":
+        bad.write_bytes(data[: len(data) // 2])
+    elif case == "no-footer":
+        bad.write_bytes(data[:-1])  # every frame intact, the footer cut: would read as a silently short file
+    for fn in (R.read_recording, R.entity_paths, R.open_rrd):
+        with pytest.raises(FvizError) as err:
+            fn(bad)
+        msg = str(err.value)
+        assert "\n" not in msg and msg.startswith(str(bad)), msg
+        if case in ("half", "no-footer"):
+            assert "truncated" in msg
+
