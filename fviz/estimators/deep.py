@@ -1,0 +1,41 @@
+"""Correspondence-free estimators: a network trained by ``fviz train`` regresses F from the two images.
+
+``deep`` is the bundled model (``assets/fviz-deep.pt``, see ``assets/MANIFEST.json``);
+``deep:PATH`` any checkpoint or exported weights file. The model loads once; each call resizes the
+pair to the model's input and maps F back to the original pixels (x_b^T F x_a = 0).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from fviz.errors import FvizError
+
+WEIGHTS_ENV = "FVIZ_WEIGHTS"
+ASSETS = Path(__file__).resolve().parents[2] / "assets"
+BUNDLED = ASSETS / "fviz-deep.pt"
+
+
+def bundled_weights() -> Path:
+    path = Path(os.environ.get(WEIGHTS_ENV, BUNDLED))
+    if not path.is_file():
+        raise FvizError(f"--estimator deep: bundled weights not found at {path} (install from a checkout with pip install -e ., or use deep:PATH)")
+    return path
+
+
+def deep_estimator(path: str | Path | None = None, device: str = "cpu"):
+    """An estimator (pair, x_a, x_b) -> F that ignores the matches."""
+    from fviz.models.predict import predict_F
+    from fviz.train.checkpoint import load_model
+
+    path = Path(path) if path else bundled_weights()
+    if not path.is_file():
+        raise FvizError(f"--estimator deep:{path}: no such file")
+    model, meta = load_model(path, device)
+
+    def estimate(pair, x_a, x_b):
+        return predict_F(model, pair.image_a, pair.image_b)
+
+    estimate.meta = meta
+    return estimate
