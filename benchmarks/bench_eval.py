@@ -26,14 +26,23 @@ PROJECT = Path(__file__).resolve().parents[1]
 DEFAULT_ROOT = Path(os.environ.get("FVIZ_KITTI_ROOT", PROJECT.parent / "shared" / "data" / "kitti"))
 
 
-def plain_opencv(root: Path, frames: int, max_keypoints: int = 2000, ratio: float = 0.8) -> float:
-    """Seconds of the naive loop: every pair detects both its images again."""
+def cpu_seconds(who) -> float:
+    import resource
+
+    r = resource.getrusage(who)
+    return r.ru_utime + r.ru_stime
+
+
+def plain_opencv(root: Path, frames: int, max_keypoints: int = 2000, ratio: float = 0.8) -> tuple[float, float]:
+    """(wall seconds, CPU seconds) of the naive loop: every pair detects both its images again."""
+    import resource
+
     import cv2
     import numpy as np
 
     images = root / "odometry" / "dataset" / "sequences" / "00" / "image_0"
     sift, bf = cv2.SIFT_create(nfeatures=max_keypoints), cv2.BFMatcher(cv2.NORM_L2)
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), cpu_seconds(resource.RUSAGE_SELF)
     for f in range(frames - 1):
         a = cv2.imread(str(images / f"{f:06d}.png"), cv2.IMREAD_GRAYSCALE)
         b = cv2.imread(str(images / f"{f + 1:06d}.png"), cv2.IMREAD_GRAYSCALE)
@@ -43,25 +52,27 @@ def plain_opencv(root: Path, frames: int, max_keypoints: int = 2000, ratio: floa
         xa = np.float64([ka[m.queryIdx].pt for m in good])
         xb = np.float64([kb[m.trainIdx].pt for m in good])
         cv2.findFundamentalMat(xa, xb, cv2.USAC_MAGSAC, 1.0, 0.999, 10000)
-    return time.perf_counter() - t0
+    return time.perf_counter() - t0, cpu_seconds(resource.RUSAGE_SELF) - c0
 
 
 def fviz_eval(args: list[str]) -> tuple[float, float, dict]:
-    """(wall seconds, peak RSS in MiB over the run's processes, outcome numbers) of one ``fviz eval``."""
+    """(wall seconds, peak RSS in MiB over the run's processes, {"cpu": CPU seconds of all of them,
+    "summary": fviz's last line}) of one ``fviz eval`` in a fresh subprocess."""
     code = (
         "import resource, subprocess, sys, time, json\n"
         "t0 = time.perf_counter()\n"
         "p = subprocess.run([sys.executable, '-m', 'fviz', 'eval', *sys.argv[1:]], capture_output=True, text=True)\n"
         "dt = time.perf_counter() - t0\n"
-        "rss = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024\n"
-        "print(json.dumps({'rc': p.returncode, 'seconds': dt, 'rss_mib': rss, 'err': p.stderr[-2000:]}))\n"
+        "r = resource.getrusage(resource.RUSAGE_CHILDREN)\n"
+        "print(json.dumps({'rc': p.returncode, 'seconds': dt, 'rss_mib': r.ru_maxrss / 1024,\n"
+        "                  'cpu': r.ru_utime + r.ru_stime, 'err': p.stderr[-2000:]}))\n"
     )
     out = subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True, check=True, cwd=PROJECT)
     res = json.loads(out.stdout)
     if res["rc"] != 0:
         raise SystemExit(f"fviz eval failed ({res['rc']}): {res['err']}")
     line = next((ln for ln in res["err"].splitlines() if ln.startswith("eval:")), "")
-    return res["seconds"], res["rss_mib"], {"summary": line.strip()}
+    return res["seconds"], res["rss_mib"], {"summary": line.strip(), "cpu": res["cpu"]}
 
 
 def speed(root: Path, workers: int) -> None:
@@ -70,11 +81,13 @@ def speed(root: Path, workers: int) -> None:
         fviz_s, _, info = fviz_eval(["--kitti-root", str(root), "--sequence", "00", "--pair", "temporal", "--step", "1",
                                      "--frames", f"0:{frames}", "-e", "magsac", "--workers", str(workers),
                                      "--no-progress", "--out-dir", f"{tmp}/run"])
-    plain_s = plain_opencv(root, frames)
-    print(f"speed, {frames - 1} temporal pairs of sequence 00, SIFT (2000) + MAGSAC++, {os.cpu_count()} cores:")
-    print(f"  fviz eval --workers {workers}: {fviz_s:7.2f} s   ({info['summary']})")
-    print(f"  plain OpenCV loop:     {plain_s:7.2f} s   (features recomputed per pair, one process)")
-    print(f"  ratio plain / fviz:    {plain_s / fviz_s:7.2f} x   (target >= 2)")
+    plain_s, plain_cpu = plain_opencv(root, frames)
+    load = os.getloadavg()[0]
+    print(f"speed, {frames - 1} temporal pairs of sequence 00, SIFT (2000) + MAGSAC++, {os.cpu_count()} cores, "
+          f"load average {load:.1f} at the end:")
+    print(f"  fviz eval --workers {workers}: {fviz_s:7.2f} s wall, {info['cpu']:7.2f} s CPU   ({info['summary']})")
+    print(f"  plain OpenCV loop:     {plain_s:7.2f} s wall, {plain_cpu:7.2f} s CPU   (features recomputed per pair, one process)")
+    print(f"  ratio plain / fviz:    {plain_s / fviz_s:7.2f} x wall, {plain_cpu / info['cpu']:5.2f} x CPU   (target >= 2 wall)")
 
 
 def memory(root: Path, workers: int, small: int, large: int) -> None:
@@ -90,7 +103,8 @@ def memory(root: Path, workers: int, small: int, large: int) -> None:
     rss = {}
     for n in (small, large):
         with tempfile.TemporaryDirectory() as tmp:
-            sec, rss[n], info = fviz_eval([*sel(n), "-e", "8point", "--max-keypoints", "500", "--workers", str(workers),
+            sec, rss[n], info = fviz_eval([*sel(n), "-e", "8point", "--features", "orb", "--max-keypoints", "500",
+                                           "--workers", str(workers),
                                            "--no-progress", "--out-dir", f"{tmp}/run"])
         print(f"  {n:5d} {what}: peak RSS {rss[n]:7.1f} MiB, {sec:7.1f} s")
     print(f"  ratio {large}/{small}: {rss[large] / rss[small]:.3f} (target <= 1.2)")

@@ -30,6 +30,7 @@ import json
 import math
 import os
 import time
+from array import array
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator
@@ -37,6 +38,7 @@ from typing import Any, Callable, Iterable, Iterator
 import numpy as np
 
 from fviz.cli.options import EstimatorOptions
+from fviz.data.kitti import PAIR_KINDS
 from fviz.data.pair import PairId
 from fviz.errors import FvizError
 from fviz.evaluate import EVAL_THRESHOLD_PX, GT_NAME, MIN_MATCHES, EstimatorResult, PairResult
@@ -50,8 +52,8 @@ RRD_FILE = "eval.rrd"
 PAYLOAD_DIR = "pairs"
 
 CONSTANT = "constant"  # the constant-F baseline: the mean ground-truth F of the selection
-CACHE_ITEMS = 64  # features kept per worker (frame-major order needs only a few)
-PAIR_KINDS = ("stereo", "temporal")
+MIN_PAIRS_PER_WORKER = 4  # fewer pairs than this per process: starting one costs more than it saves
+CACHE_ITEMS = 16  # features kept per worker, plus 2 per frame of the largest step (frame-major order)
 
 # Columns of the CSV that are text or integers; every other column is a float.
 TEXT_COLUMNS = ("name", "source", "root", "sequence", "kind", "estimator", "norm", "error", "pair_error")
@@ -59,6 +61,8 @@ INT_COLUMNS = ("index", "frame_a", "frame_b", "cam_a", "cam_b", "n_matches", "n_
 # Metrics summarised per estimator in summary.md (mean, median, p90, p99).
 SUMMARY_METRICS = ("sed_median", "sampson_median", "epi_abs", "epi_sqr", "inlier_ratio", "f_dist", "epipole_err_deg", "seconds")
 PERCENTILES = (90, 99)
+PAPER_NORMS = ("fbn", "abs", "etr")
+PAPER_COLUMNS = tuple(f"epi_{m}_{n}" for n in PAPER_NORMS for m in ("abs", "sqr"))
 
 
 # ------------------------------------------------------------------------------------ selection
@@ -94,6 +98,13 @@ class Selection:
             raise FvizError("--synthetic: give the scenes as --seeds A:B (seeds A .. B-1)")
         if not self.synthetic and self.seeds is not None:
             raise FvizError("--seeds: only with --synthetic")
+        if self.synthetic:
+            kitti_only = {"--kitti-root": self.kitti_root, "--sequence": self.sequence, "--drive": self.drive,
+                          "--cams": self.cams, "--frames": self.frames != (None, None) or None,
+                          "--step": self.steps != (1,) or None}
+            given = [flag for flag, v in kitti_only.items() if v is not None]
+            if given:
+                raise FvizError(f"{given[0]}: KITTI selections only, not with --synthetic (select scenes with --seeds A:B)")
         if self.seeds is not None and not 0 <= self.seeds[0] < self.seeds[1]:
             raise FvizError(f"--seeds {self.seeds[0]}:{self.seeds[1]}: need 0 <= A < B")
 
@@ -265,11 +276,17 @@ class RunConfig:
         return [(i, ids[i]) for i in shard_slice(len(ids), self.shard)]
 
     def comparable(self) -> dict[str, Any]:
-        """What must agree for two runs' records to be mixed (resume, merge): all but names and shard."""
+        """What must agree for two runs' records to be mixed (resume, merge): all but the estimator names
+        (pairs lacking one are evaluated again), the shard and ``full`` (which only adds payload files)."""
         d = self.to_dict()
         d["options"] = {k: v for k, v in d["options"].items() if k != "names"}
         d.pop("shard")
+        d.pop("full")
         return d
+
+    def cache_items(self) -> int:
+        """Features kept per worker: enough for the frames a frame-major window of pairs shares."""
+        return CACHE_ITEMS + 2 * max(self.selection.steps)
 
 
 def mean_fundamental(Fs: Iterable[np.ndarray]) -> np.ndarray:
@@ -348,7 +365,7 @@ class PairEvaluator:
         self.source = config.selection.source()
         self.estimators = resolve_estimators(config)
         self.features = config.options.feature_config()
-        self.cache = FeatureCache(self.features, max_items=CACHE_ITEMS)
+        self.cache = FeatureCache(self.features, max_items=config.cache_items())
 
     def evaluate(self, pid: PairId):
         """(Pair, PairResult) with the full payload (what inspect and triage.rrd show)."""
@@ -538,7 +555,7 @@ def _init_worker(config_dict: dict, out_dir: str, queue, stop) -> None:
 
     import cv2
 
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # already inherited; kept for other start methods
     cv2.setNumThreads(1)  # one process per core already
     try:
         import torch
@@ -573,7 +590,8 @@ def _execute(config: RunConfig, todo: list[tuple[int, PairId]], workers: int, ou
     One worker: in this process. Several: a process pool, one contiguous chunk per worker; on
     Ctrl-C the workers finish their current pair, whose records still reach ``on_record``.
     """
-    if workers <= 1 or len(todo) <= 1:
+    workers = min(workers, len(todo) // MIN_PAIRS_PER_WORKER)
+    if workers <= 1:
         evaluator = PairEvaluator(config, out_dir)
         for index, pid in todo:
             on_record(evaluator.record(index, pid))
@@ -587,7 +605,8 @@ def _execute(config: RunConfig, todo: list[tuple[int, PairId]], workers: int, ou
     with _single_threaded_children(), ProcessPoolExecutor(
         len(chunks), mp_context=ctx, initializer=_init_worker, initargs=(config.to_dict(), str(out_dir), queue, stop)
     ) as pool:
-        futures = [pool.submit(_run_chunk, c) for c in chunks]
+        with _sigint_ignored():  # the workers start (and inherit) with Ctrl-C ignored
+            futures = [pool.submit(_run_chunk, c) for c in chunks]
         received = [0]
         try:
             _drain(queue, futures, on_record, received)
@@ -595,6 +614,17 @@ def _execute(config: RunConfig, todo: list[tuple[int, PairId]], workers: int, ou
             stop.set()
             _drain(queue, futures, on_record, received)
             raise
+
+
+@contextlib.contextmanager
+def _sigint_ignored():
+    import signal
+
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 THREAD_ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
@@ -655,7 +685,7 @@ def _check_resume(out_dir: Path, config: RunConfig, resume: bool) -> None:
         raise FvizError(f"--out-dir {out_dir} already holds a run: add --resume to continue it, or choose another folder")
     if old is not None and has_results and old.comparable() != config.comparable():
         diff = [k for k in config.comparable() if old.comparable().get(k) != config.comparable()[k]]
-        raise FvizError(f"--resume: {out_dir} was run with other options ({', '.join(diff)} differ); "
+        raise FvizError(f"--resume: {out_dir} was run with other options (different {', '.join(diff)}); "
                         "use the same flags or another --out-dir")
     if old is not None and has_results and old.shard != config.shard:
         raise FvizError(f"--resume: {out_dir} holds shard {old.shard}, not {config.shard}")
@@ -743,8 +773,9 @@ def _atomic(path: Path) -> Path:
 class _Stats:
     """Finite values per (estimator, metric) for the summary; failures counted per estimator."""
 
-    def __init__(self):
-        self.values: dict[tuple[str, str], list[float]] = {}
+    def __init__(self, keys: Iterable[str]):
+        self.keys = frozenset(keys)
+        self.values: dict[tuple[str, str], array] = {}
         self.failed: dict[str, int] = {}
         self.pairs = self.pair_errors = 0
         self.order: dict[str, None] = {}
@@ -757,9 +788,10 @@ class _Stats:
             self.order[est] = None
             if row["error"] or rec["error"]:
                 self.failed[est] = self.failed.get(est, 0) + 1
-            for key, v in row.items():
+            for key in self.keys:
+                v = row.get(key)
                 if isinstance(v, float) and math.isfinite(v):
-                    self.values.setdefault((est, key), []).append(v)
+                    self.values.setdefault((est, key), array("d")).append(v)
 
     def get(self, est: str, key: str) -> np.ndarray:
         return np.asarray(self.values.get((est, key), []), dtype=np.float64)
@@ -782,7 +814,7 @@ def _write_tables(out_dir: Path, config: RunConfig, columns: list[str], batch: i
 
     csv_path, pq_path = out_dir / CSV_FILE, out_dir / PARQUET_FILE
     csv_tmp, pq_tmp = _atomic(csv_path), _atomic(pq_path)
-    schema, stats, pending = _arrow_schema(columns), _Stats(), []
+    schema, stats, pending = _arrow_schema(columns), _Stats(SUMMARY_METRICS + PAPER_COLUMNS), []
     with open(csv_tmp, "w", newline="") as f, pq.ParquetWriter(pq_tmp, schema) as pw:
         writer = csv.DictWriter(f, columns, restval="")
         writer.writeheader()
@@ -826,8 +858,6 @@ def _display(est: str) -> str:
 
 def summary_markdown(config: RunConfig, stats: _Stats) -> str:
     """Per-estimator statistics of the key metrics and the paper-style EPI table."""
-    from fviz.geometry import NORMS
-
     ests = list(stats.order) or config.series_names()
     o = config.options
     lines = [
@@ -858,11 +888,11 @@ def summary_markdown(config: RunConfig, stats: _Stats) -> str:
         "F normalized by the norm named in each column (FBN: Frobenius norm, ABS: largest absolute entry, "
         "ETR: F33; n/a where undefined, e.g. ETR on rectified stereo pairs where F33 = 0).",
         "",
-        "| estimator | " + " | ".join(f"EPI-ABS {n.upper()} | EPI-SQR {n.upper()}" for n in ("fbn", "abs", "etr") if n in NORMS) + " |",
-        "|---|" + "---|---|" * len(NORMS),
+        "| estimator | " + " | ".join(f"EPI-ABS {n.upper()} | EPI-SQR {n.upper()}" for n in PAPER_NORMS) + " |",
+        "|---|" + "---|---|" * len(PAPER_NORMS),
     ]
     for est in ests:
-        vals = [stats.get(est, f"epi_{m}_{n}") for n in ("fbn", "abs", "etr") for m in ("abs", "sqr")]
+        vals = [stats.get(est, c) for c in PAPER_COLUMNS]
         lines.append(f"| {_display(est)} | " + " | ".join(_fmt(v.mean()) if len(v) else "n/a" for v in vals) + " |")
     if CONSTANT in ests:
         lines += ["", f"`{CONSTANT}`: one F for every pair, the mean ground-truth F of the selection (FBN-normalized, "

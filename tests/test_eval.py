@@ -144,6 +144,7 @@ def test_existing_run_needs_resume_and_same_options(run, kitti_root):
     assert_one_line_error(r, 2, "selection")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("workers", [1, 2])
 def test_features_of_shared_frames_are_detected_once(kitti_root, tmp_path, workers):
     out = tmp_path / "run"
@@ -213,6 +214,7 @@ def _wait_for_lines(path, n, proc, timeout=120):
     raise AssertionError("the run did not progress")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("workers", [1, 2])
 def test_ctrl_c_leaves_valid_partial_reports_that_resume_completes(kitti_root, tmp_path, workers):
     out = tmp_path / "run"

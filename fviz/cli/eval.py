@@ -98,7 +98,8 @@ class RunArgs:
         if existing is not None:
             if self.estimator:
                 existing = replace(existing, options=replace(existing.options, names=tuple(self.estimator)))
-            return replace(existing, shard=parse_shard(self.shard) if self.shard else existing.shard)
+            return replace(existing, shard=parse_shard(self.shard) if self.shard else existing.shard,
+                           full=existing.full or self.full)
         opts = o.EstimatorOptions(tuple(self.estimator or default_estimators), self.features, self.max_keypoints,
                                   self.ratio, self.mutual, self.threshold, self.confidence, self.max_iters, self.seed)
         return RunConfig(self.selection(), opts, self.norm, self.eval_threshold, self.full,
@@ -174,6 +175,10 @@ def print_outcome(outcome, what: str = "eval") -> None:
           f"{outcome.failed} failed, {outcome.detections} feature detections) -> {outcome.out_dir}", file=err)
     for path in outcome.paths.values():
         print(f"  {path}", file=err)
+    missing = outcome.total - outcome.reused - outcome.computed
+    if missing > 0 and not outcome.interrupted:
+        print(f"{missing} pairs of the selection are not in {outcome.out_dir} yet: merge the missing shards, "
+              f"or run fviz eval --out-dir {outcome.out_dir} --resume", file=err)
     if outcome.interrupted:
         print(f"interrupted: reports cover the finished pairs; finish with: fviz {what} --out-dir {outcome.out_dir} --resume",
               file=err)
@@ -190,8 +195,9 @@ def _default_estimators() -> tuple[str, ...]:
 def eval_(args: RunArgs, resume: Resume = False) -> None:
     """Run estimators on every pair of a selection: metrics.csv/.parquet, summary.md and eval.rrd in --out-dir.
 
-    Default estimators: inspect's (8point, ransac, magsac) plus `constant`, the mean ground-truth F of the
-    selection. Without selection flags, --resume continues the run in --out-dir as it was configured.
+    Default estimators: inspect's (8point, ransac, magsac) plus `constant`, the mean ground-truth F of the selection.
+
+    Without selection flags, --resume continues the run in --out-dir as it was configured. Ctrl-C keeps the reports of the finished pairs (exit 130).
     """
     from fviz.runner import run_eval
 

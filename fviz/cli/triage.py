@@ -20,8 +20,9 @@ Top = Annotated[int, typer.Option("--top", help="Pairs listed in triage.md and r
 def triage(args: RunArgs, by: By = "magsac", metric: Metric = "sed_median", top: Top = 20) -> None:
     """Rank pairs by a metric of one estimator, worst first, tag likely causes; write triage.md and triage.rrd.
 
-    Runs eval first with resume semantics (pairs already in --out-dir are reused) and always includes the
-    `constant` baseline. Without selection flags, the run in --out-dir is triaged as it was configured.
+    Runs eval first with resume semantics (pairs already in --out-dir are reused) and always includes the `constant` baseline.
+
+    Without selection flags, the run in --out-dir is triaged as it was configured.
     """
     from fviz.cli.eval import _default_estimators
     from fviz.triage import run_triage
