@@ -10,8 +10,10 @@ integers).  The normalization layer comes after the head (:mod:`fviz.models.norm
   F = K_b^-T [t]x R K_a^-1 with K_i = [[f_i, 0, cx], [0, f_i, cy], [0, 0, 1]], the principal point at
   the image centre (cx, cy) = ((W - 1) / 2, (H - 1) / 2), R = Rx(rx) Ry(ry) Rz(rz) (Euler angles, radians)
   and the motion X_b = R X_a + t, i.e. exactly :func:`fviz.geometry.fundamental_from_motion`.
-  The focal lengths are f_i = max(H, W) * exp(raw_i) (positive; raw clamped to [-4, 4]).  Rank 2 by
-  construction ([t]x has rank 2).
+  Output scaling (what the FC predicts): f_i = max(H, W) exp(2 tanh(raw_i / 2)) (positive, bounded),
+  angles = 0.1 rad x raw (rotations between two views are small; this only sets the output unit),
+  t = raw / ||raw|| (F is homogeneous in t: the unit vector keeps the gradients well scaled).
+  Rank 2 by construction ([t]x has rank 2).
 - :class:`EpiHead` (k = 8, the epipolar parametrization): two columns c1, c2 and (alpha, beta);
   the third column is alpha c1 + beta c2, so F (alpha, beta, -1)^T = 0: rank 2 by construction, and
   (alpha, beta) is the epipole in image a.  This cannot represent an epipole at infinity (rectified
@@ -25,6 +27,13 @@ that makes all nine raw outputs O(1) for real geometries, instead of entries tha
 (W / 2)^2 in pixel coordinates, which eases the regression.  ``conditioned=False`` regresses the
 pixel-coordinate entries directly, as the paper does.  REC needs no conditioning: its K does that.
 
+Initialization: the last FC layer of every head starts with weights 100x smaller than PyTorch's
+default, so that a fresh network predicts nearly the same F for every pair and training starts by
+fitting the average geometry.  Measured on synthetic scenes: with the default initialization the
+REC head at lr 1e-3 started from random rotations/translations and stayed at a validation loss of
+0.31 (median epipolar distance 30 px at 48 x 160); with the small one it reached 0.005 (1.7 px) in
+the same 300 steps.
+
 All geometry runs in float32 even under autocast.
 """
 
@@ -33,7 +42,9 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-FOCAL_CLAMP = 4.0
+FOCAL_RANGE = 2.0  # REC: f = max(H, W) * exp(2 tanh(raw / 2)), within [0.14, 7.4] x max(H, W)
+ANGLE_UNIT = 0.1  # REC: Euler angles = 0.1 rad x raw output
+OUTPUT_INIT_SCALE = 0.01  # the last FC layer starts with weights 100x smaller than PyTorch's default
 
 
 def mlp(n_in: int, hidden: int, n_out: int, dropout: float) -> nn.Sequential:
@@ -99,6 +110,8 @@ class _Head(nn.Module):
         self.input_hw = (int(input_hw[0]), int(input_hw[1]))
         self.conditioned = bool(conditioned)
         self.fc = mlp(n_in, hidden, self.n_out, dropout)
+        with torch.no_grad():  # start close to a constant prediction (see the module docstring)
+            self.fc[-1].weight.mul_(OUTPUT_INIT_SCALE)
         self.register_buffer("T", conditioning_matrix(self.input_hw), persistent=False)
 
     def forward(self, features: torch.Tensor) -> torch.Tensor:
@@ -133,9 +146,12 @@ class RecHead(_Head):
 
     def to_fundamental(self, y: torch.Tensor) -> torch.Tensor:
         scale = float(max(self.input_hw))
-        f = scale * torch.exp(y[:, 0:2].clamp(-FOCAL_CLAMP, FOCAL_CLAMP))
+        f = scale * torch.exp(FOCAL_RANGE * torch.tanh(y[:, 0:2] / FOCAL_RANGE))
+        angles = ANGLE_UNIT * y[:, 2:5]
+        t = y[:, 5:8]
+        t = t / t.norm(dim=1, keepdim=True).clamp_min(1e-8)
         cx, cy = principal_point(self.input_hw)
-        return fundamental_from_params(f[:, 0], f[:, 1], y[:, 2:5], y[:, 5:8], cx, cy)
+        return fundamental_from_params(f[:, 0], f[:, 1], angles, t, cx, cy)
 
 
 class EpiHead(_Head):

@@ -49,7 +49,7 @@ def git_commit() -> str | None:
 def code_version() -> dict[str, Any]:
     import fviz
 
-    return {"fviz": fviz.__version__, "git": git_commit(), "torch": torch.__version__}
+    return {"fviz": fviz.__version__, "git": git_commit(), "torch": str(torch.__version__)}
 
 
 def _unwrap(model: torch.nn.Module) -> torch.nn.Module:
@@ -120,7 +120,8 @@ def read_checkpoint(path: str | Path) -> dict[str, Any]:
     try:
         ckpt = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # torch raises many types for a foreign or corrupt file
-        reason = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        lines = [ln.strip() for ln in str(exc).strip().splitlines() if ln.strip()] or [type(exc).__name__]
+        reason = next((ln for ln in lines if ln.startswith("WeightsUnpickler error")), lines[0])
         raise FvizError(f"{path}: not an fviz model checkpoint (cannot be read: {reason[:160]})") from None
     if not isinstance(ckpt, dict) or ckpt.get("format") != FORMAT:
         raise FvizError(f"{path}: not an fviz model checkpoint (no '{FORMAT}' format marker)")

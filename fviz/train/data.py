@@ -16,7 +16,9 @@ through a ``DataLoader(batch_size=None)``, so workers build whole batches.
   :func:`fviz.data.kitti.open_dataset`; the full-resolution images are resized (gray, INTER_AREA)
   and the ground-truth F mapped to input pixels by F_small = S_b^-T F_full S_a^-1, the inverse of
   what :func:`fviz.models.predict_F` does.
-- :class:`TensorPairs`: pairs already in memory (tests, benchmarks).
+- :class:`TensorPairs`: pairs already in memory (tests, benchmarks);
+- :class:`CachedPairs` (``data.cache = true``): any of the above rendered / loaded once into
+  memory as uint8, so that later epochs cost no rendering or PNG decoding.
 
 Splits (:func:`make_datasets`): synthetic validation uses its own seeds, disjoint from training's;
 KITTI validation uses ``data.val_sequences`` when given, else the last ``val_fraction`` of each
@@ -70,6 +72,41 @@ class TensorPairs(torch.utils.data.Dataset):
     def __getitem__(self, idx):
         i = torch.as_tensor(_as_indices(idx), dtype=torch.long)
         return self.img_a[i], self.img_b[i], self.F[i]
+
+
+class CachedPairs(torch.utils.data.Dataset):
+    """Every pair of ``source`` loaded once into memory: images as uint8 (N, 1, H, W), F float32.
+
+    Synthetic images are exact multiples of 1/255, so caching them is lossless; resized KITTI images
+    are rounded to the nearest grey level.  Memory: 2 * N * H * W bytes (60k pairs at 96 x 320: 3.7 GB).
+    Loading uses ``num_workers`` processes; ``on_batch(done, total)`` reports progress.
+    """
+
+    def __init__(self, source, batch_size: int = 64, num_workers: int = 0, on_batch=None):
+        n = len(source)
+        batches = [list(range(i, min(i + batch_size, n))) for i in range(0, n, batch_size)]
+        loader = torch.utils.data.DataLoader(source, batch_size=None, sampler=batches, num_workers=num_workers)
+        self.img_a = self.img_b = self.F = None
+        for k, (a, b, F) in enumerate(loader):
+            if self.img_a is None:
+                self.img_a = torch.empty((n, *a.shape[1:]), dtype=torch.uint8)
+                self.img_b = torch.empty((n, *b.shape[1:]), dtype=torch.uint8)
+                self.F = torch.empty((n, 3, 3), dtype=torch.float32)
+            idx = torch.as_tensor(batches[k])
+            self.img_a[idx] = (a.float().cpu() * 255.0).round().clamp(0, 255).to(torch.uint8)
+            self.img_b[idx] = (b.float().cpu() * 255.0).round().clamp(0, 255).to(torch.uint8)
+            self.F[idx] = F.float().cpu()
+            if on_batch is not None:
+                on_batch(min((k + 1) * batch_size, n), n)
+        if self.F is None:
+            self.F = torch.empty((0, 3, 3))
+
+    def __len__(self) -> int:
+        return len(self.F)
+
+    def __getitem__(self, idx):
+        i = torch.as_tensor(_as_indices(idx), dtype=torch.long)
+        return self.img_a[i].float() / 255.0, self.img_b[i].float() / 255.0, self.F[i]
 
 
 def _synthetic_api():
@@ -250,6 +287,11 @@ def make_datasets(recipe, render_device: str | torch.device = "cpu") -> tuple[to
         scene_config(hw, d.synthetic)  # fail early on unknown SceneConfig fields
         tr, va = synthetic_seeds(recipe.train.seed, d.train_size, d.val_size)
         return (SyntheticPairs(tr, hw, norm, d.synthetic, render_device), SyntheticPairs(va, hw, norm, d.synthetic, render_device))
+    if norm == "etr" and recipe.kind == "stereo":
+        raise FvizError(
+            f"{recipe.model.variant}: ETR normalization is undefined for rectified stereo pairs (F33 = 0); "
+            "train an fbn or abs variant on them, or use temporal pairs"
+        )
     try:
         import fviz.data.kitti  # noqa: F401
     except ImportError as exc:

@@ -7,9 +7,9 @@ A recipe has three tables, every key optional (defaults below):
 
     [model]   variant, input_size, width, pool_grid, hidden, dropout, conditioned
     [data]    source, root, sequences, drives, val_sequences, kind, steps, cams, frames, frame_stride,
-              val_fraction, train_size, val_size, val_points, synthetic = { SceneConfig fields }
-    [train]   batch_size, lr, weight_decay, epochs, max_steps, l1_weight, l2_weight, loss_frame,
-              grad_clip, seed, device, amp, num_workers, out_dir, checkpoint_every, val_every,
+              val_fraction, train_size, val_size, val_points, cache, synthetic = { SceneConfig fields }
+    [train]   batch_size, lr, schedule, warmup_steps, weight_decay, epochs, max_steps, l1_weight, l2_weight, loss_frame,
+              grad_clip, seed, device, amp, num_workers, threads, out_dir, checkpoint_every, val_every,
               log_every, export_dtype
 
     [variants."siamese-rec-pos-fbn"]   # optional per-variant overrides, applied when
@@ -27,7 +27,8 @@ naming the file (or the ``--set`` argument) and the key, e.g.
 ``recipe recipes/x.toml: unknown key 'model.hed'``.
 
 Relative paths in ``data.root`` and ``train.out_dir`` are relative to the working directory
-(``~`` and ``$VARS`` are expanded); ``base`` is relative to the recipe that names it.
+(``~`` and ``$VARS`` are expanded; ``{variant}`` in ``train.out_dir`` becomes the variant's name);
+``base`` is relative to the recipe that names it.
 """
 
 from __future__ import annotations
@@ -85,6 +86,7 @@ class DataSection:
     train_size: int = field(default=20000, metadata={"min": 1})  # synthetic: distinct training scenes per epoch
     val_size: int = field(default=256, metadata={"min": 0})  # synthetic: validation scenes; KITTI: cap (0 = all)
     val_points: int = field(default=256, metadata={"min": 8})  # points per pair for EPI-ABS / EPI-SQR
+    cache: bool = False  # render / load every pair once into memory (uint8), then train epochs from there
     synthetic: dict = field(default_factory=dict)  # extra fviz.data.synthetic.SceneConfig fields
 
 
@@ -94,6 +96,8 @@ class TrainSection:
 
     batch_size: int = field(default=32, metadata={"min": 1})  # per process (per GPU under torchrun)
     lr: float = field(default=1e-4, metadata={"min": 0.0})
+    schedule: str = field(default="constant", metadata=_choices("constant", "cosine"))  # cosine: lr -> 0 at the last step
+    warmup_steps: int = field(default=0, metadata={"min": 0})  # linear warm-up from 0
     weight_decay: float = field(default=0.0, metadata={"min": 0.0})
     epochs: int = field(default=10, metadata={"min": 1})
     max_steps: int = field(default=0, metadata={"min": 0})  # > 0: stop after this many optimizer steps
@@ -105,6 +109,7 @@ class TrainSection:
     device: str = "auto"  # auto | cpu | cuda | cuda:N
     amp: str = field(default="auto", metadata=_choices("auto", "bf16", "fp16", "off"))
     num_workers: int = field(default=2, metadata={"min": 0})
+    threads: int = field(default=0, metadata={"min": 0})  # CPU threads of torch in this process (0: torch's default)
     out_dir: str = "runs/fviz"
     checkpoint_every: int = field(default=0, metadata={"min": 0})  # steps; 0: at each validation
     val_every: int = field(default=0, metadata={"min": 0})  # steps; 0: at the end of each epoch

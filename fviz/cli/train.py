@@ -1,0 +1,46 @@
+"""``fviz train RECIPE [--set KEY=VALUE ...] [--resume]``: train one of the paper's networks.
+
+Several GPUs: ``torchrun --nproc_per_node N -m fviz train RECIPE`` (see :mod:`fviz.train.loop`).
+
+The lead's CLI calls :func:`register` to add the command to its Typer app.  Errors are
+:class:`fviz.errors.FvizError` (one line; the CLI prints it and exits 2).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import List
+
+import typer
+
+
+def train(
+    recipe: Path = typer.Argument(..., help="Recipe TOML file (see recipes/)."),
+    set_: List[str] = typer.Option([], "--set", help="Override a recipe key, e.g. --set train.lr=3e-4 --set model.variant=single-epi-abs (repeatable)."),
+    resume: bool = typer.Option(False, "--resume", help="Continue from the last checkpoint in train.out_dir."),
+) -> None:
+    """Train a fundamental-matrix network from a recipe; writes last.pt, model.pt and train.rrd to train.out_dir."""
+    from rich.console import Console
+
+    from fviz.train.loop import train as run_training
+    from fviz.train.recipe import load_recipe
+
+    console = Console(stderr=True)
+    config = load_recipe(recipe, list(set_))
+    main = int(os.environ.get("RANK", "0")) == 0  # under torchrun only rank 0 talks
+    if main:
+        console.print(f"training [bold]{config.model.variant}[/] at {config.input_hw[0]}x{config.input_hw[1]} "
+                      f"on {config.data.source} -> {config.train.out_dir}")
+    result = run_training(config, resume=resume, progress=main, console=console)
+    if not main:
+        return
+    m = result.metrics
+    summary = "  ".join(f"{k} {v:.4g}" for k, v in m.items())
+    console.print(f"done: {result.step} steps in {result.seconds:.0f} s; {summary}")
+    console.print(f"checkpoint {result.checkpoint}\nweights    {result.weights}\ncurves     {result.recording}")
+
+
+def register(app: typer.Typer) -> None:
+    """Add the ``train`` command to ``app``."""
+    app.command("train")(train)

@@ -1,0 +1,579 @@
+"""The training loop: ``train(recipe) -> TrainResult``.
+
+Loss (paper, Sec. 4): L1 + L2 between the predicted and the target F, both normalized by the
+model's layer, per pair ``l1_weight * mean|F - F_t| + l2_weight * mean (F - F_t)^2``.  F is only
+defined up to sign: for fbn and abs the loss of a pair is the smaller of the losses of F and -F
+(ETR fixes the sign itself).  ``loss_frame = "pixel"`` (the paper) compares the matrices in
+model-input pixels; ``"conditioned"`` compares them after mapping both to coordinates where the image
+spans [-1, 1] (:func:`fviz.models.heads.conditioning_matrix`) and normalizing again, which weighs
+all nine entries alike instead of letting the last row and column dominate.
+
+Optimizer: Adam (``lr``, ``weight_decay``), gradient norm clipped at ``grad_clip`` (1.0); the
+learning rate is constant or follows a cosine to 0 at the last step (``schedule``), after
+``warmup_steps`` of linear warm-up (computed from the step count, so resuming keeps it).
+
+Validation (every epoch, or every ``val_every`` steps), the paper's metrics on ``val_points``
+points per pair sampled *on the ground-truth geometry*: x_a uniform in image a, x_b the projection
+of a uniform point of image b onto the epipolar line F_t x_a, so x_b^T F_gt x_a = 0 exactly (the
+same for synthetic and KITTI pairs: KITTI has no dense correspondences, and for synthetic scenes
+these points are exact too; a fixed generator makes them identical across validations):
+
+- ``epi_abs``: mean |x_b^T F x_a| with F scaled to unit Frobenius norm, in model-input pixels;
+- ``epi_sqr``: mean (x_b^T F x_a)^2, same F and points;
+- ``sed_px``: median symmetric epipolar distance (pixels of the model input);
+- ``f_dist``: mean min ||F -+ F_t|| of unit-norm matrices; ``loss``: the training loss.
+
+Outputs in ``train.out_dir``: ``last.pt`` (full checkpoint: model, optimizer, recipe, metrics, step,
+code version; rewritten atomically every ``checkpoint_every`` steps and at each validation),
+``model.pt`` (weights only, ``export_dtype``, written at the end: the file to ship), and
+``train.rrd`` (Rerun recording of the curves ``train/*`` and ``val/*`` on the ``step`` timeline,
+written to a temporary name and renamed into place at each checkpoint and at the end).  Resuming
+(``resume=True``, CLI ``--resume``) continues from ``last.pt`` with its step count, optimizer state
+and position in the epoch, and records into ``train-resume-<step>.rrd`` with the same recording
+id (open both files together to see one curve).  A fresh run refuses an ``out_dir`` that already
+holds ``last.pt``.
+
+A non-finite loss stops training with :class:`TrainingDiverged` (an FvizError) naming the step;
+``last.pt`` is then the last good checkpoint (weights are never saved after a NaN step).
+
+Device: ``train.device = "auto"`` picks CUDA when available, else the CPU.  On CUDA ``amp = "auto"``
+uses bf16 autocast where supported, else fp16 with a gradient scaler; on the CPU training runs in
+float32.  Data loading uses ``num_workers`` worker processes (synthetic scenes with 0 workers are
+rendered in the main process on the training device).  ``data.cache = true`` renders / loads every
+pair once (with those workers) into memory and trains all epochs from there.
+
+Multi-GPU: run under torchrun, e.g. ``torchrun --nproc_per_node 4 -m fviz train RECIPE`` (any
+launcher that sets WORLD_SIZE / RANK / LOCAL_RANK).  With WORLD_SIZE > 1 the model is wrapped in
+DistributedDataParallel (NCCL on CUDA, gloo on CPU), each process takes a disjoint slice of every
+epoch with ``train.batch_size`` pairs per step (the global batch is WORLD_SIZE times larger: scale
+``lr`` accordingly), and rank 0 alone validates, logs, and writes checkpoints.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import shutil
+import time
+import uuid
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from fviz.errors import FvizError
+from fviz.train.recipe import Recipe, load_recipe, resolve_path
+
+
+class TrainingDiverged(FvizError):
+    """The loss became NaN or infinite; ``checkpoint`` is the last good one (or None)."""
+
+    def __init__(self, message: str, step: int, checkpoint: Path | None):
+        super().__init__(message)
+        self.step = step
+        self.checkpoint = checkpoint
+
+
+@dataclass
+class TrainResult:
+    out_dir: Path
+    checkpoint: Path
+    weights: Path | None
+    recording: Path | None
+    step: int
+    epoch: int
+    metrics: dict[str, float]  # the last validation
+    history: list[dict[str, Any]]  # every validation: {"step", "epoch", metrics...}
+    losses: list[float] = field(default_factory=list)  # training loss of every step of this run
+    seconds: float = 0.0
+
+
+# ----------------------------------------------------------------------------------------------- loss & metrics
+
+
+def _to_conditioned(F: torch.Tensor, input_hw: tuple[int, int], norm: str) -> torch.Tensor:
+    from fviz.models.heads import conditioning_matrix
+    from fviz.models.normalization import normalize_f
+
+    T_inv = torch.linalg.inv(conditioning_matrix(input_hw, dtype=F.dtype, device=F.device))
+    return normalize_f(T_inv.transpose(0, 1) @ F @ T_inv, norm, strict=False)
+
+
+def f_loss(F_pred: torch.Tensor, F_t: torch.Tensor, norm: str, l1_weight: float = 1.0, l2_weight: float = 1.0,
+           frame: str = "pixel", input_hw: tuple[int, int] | None = None) -> torch.Tensor:
+    """L1 + L2 between normalized matrices, sign-invariant for fbn/abs.  (B, 3, 3) x 2 -> scalar."""
+    F_pred, F_t = F_pred.float(), F_t.float()
+    if frame == "conditioned":
+        F_pred, F_t = _to_conditioned(F_pred, input_hw, norm), _to_conditioned(F_t, input_hw, norm)
+
+    def per_pair(d: torch.Tensor) -> torch.Tensor:
+        return l1_weight * d.abs().mean((-1, -2)) + l2_weight * d.square().mean((-1, -2))
+
+    loss = per_pair(F_pred - F_t)
+    if norm != "etr":
+        loss = torch.minimum(loss, per_pair(F_pred + F_t))
+    return loss.mean()
+
+
+def sample_points_on_geometry(F_t: torch.Tensor, input_hw: tuple[int, int], n: int, generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
+    """Points with x_b^T F_t x_a = 0: x_a uniform, x_b = a uniform point projected on F_t x_a.  -> (B, n, 3) x 2, float64."""
+    B = F_t.shape[0]
+    H, W = input_hw
+    scale = torch.tensor([W - 1, H - 1], dtype=torch.float64)
+    xa = torch.rand(B, n, 2, generator=generator, dtype=torch.float64) * scale
+    p = torch.rand(B, n, 2, generator=generator, dtype=torch.float64) * scale
+    one = torch.ones(B, n, 1, dtype=torch.float64)
+    xa = torch.cat([xa, one], -1).to(F_t.device)
+    p = torch.cat([p, one], -1).to(F_t.device)
+    lines = xa @ F_t.double().transpose(-1, -2)  # (B, n, 3): l = F x_a
+    ab2 = lines[..., :2].square().sum(-1, keepdim=True).clamp_min(1e-300)
+    dist = (lines * p).sum(-1, keepdim=True)
+    xb = p.clone()
+    xb[..., :2] = p[..., :2] - dist * lines[..., :2] / ab2
+    return xa, xb
+
+
+def epipolar_metrics(F_pred: torch.Tensor, xa: torch.Tensor, xb: torch.Tensor) -> dict[str, torch.Tensor]:
+    """Per-point |x_b^T F x_a| (unit-Frobenius F) and symmetric epipolar distance.  -> (B, n) each."""
+    F = F_pred.double()
+    F = F / F.flatten(1).norm(dim=1).clamp_min(1e-300)[:, None, None]
+    Fxa = xa @ F.transpose(-1, -2)
+    Ftxb = xb @ F
+    r = (xb * Fxa).sum(-1)
+    d_b = r.abs() / Fxa[..., :2].norm(dim=-1).clamp_min(1e-300)
+    d_a = r.abs() / Ftxb[..., :2].norm(dim=-1).clamp_min(1e-300)
+    return {"abs": r.abs(), "sed": 0.5 * (d_a + d_b)}
+
+
+def f_distance_t(F_pred: torch.Tensor, F_t: torch.Tensor) -> torch.Tensor:
+    a = F_pred.double().flatten(1)
+    b = F_t.double().flatten(1)
+    a = a / a.norm(dim=1, keepdim=True).clamp_min(1e-300)
+    b = b / b.norm(dim=1, keepdim=True).clamp_min(1e-300)
+    return torch.minimum((a - b).norm(dim=1), (a + b).norm(dim=1))
+
+
+# ----------------------------------------------------------------------------------------------- helpers
+
+
+class _Batches(torch.utils.data.Sampler):
+    """A sampler whose batches (lists of indices) can be swapped between epochs (persistent workers)."""
+
+    def __init__(self, batches: list[list[int]] | None = None):
+        self.batches = batches or []
+
+    def __iter__(self):
+        return iter(list(self.batches))
+
+    def __len__(self) -> int:
+        return len(self.batches)
+
+
+def _loader(ds, sampler: _Batches, num_workers: int, pin: bool) -> torch.utils.data.DataLoader:
+    return torch.utils.data.DataLoader(
+        ds, batch_size=None, sampler=sampler, num_workers=num_workers, pin_memory=pin, persistent_workers=num_workers > 0
+    )
+
+
+def resolve_device(name: str) -> torch.device:
+    name = (name or "auto").lower()
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    try:
+        dev = torch.device(name)
+    except RuntimeError:
+        raise FvizError(f"train.device {name!r} is not a device (auto, cpu, cuda, cuda:N)") from None
+    if dev.type == "cuda" and not torch.cuda.is_available():
+        raise FvizError(f"train.device is {name!r} but CUDA is not available here; use 'auto' or 'cpu'")
+    return dev
+
+
+def _amp_dtype(amp: str, device: torch.device) -> torch.dtype | None:
+    if device.type != "cuda" or amp == "off":
+        return None
+    if amp == "bf16" or (amp == "auto" and torch.cuda.is_bf16_supported()):
+        return torch.bfloat16
+    return torch.float16
+
+
+class _Curves:
+    """Training curves into a Rerun .rrd: written to ``<name>.part``, renamed into place."""
+
+    def __init__(self, path: Path, recording_id: str):
+        import rerun as rr
+
+        self.rr = rr
+        self.path = path
+        self.part = path.with_name(path.name + ".part")
+        self.rec = rr.RecordingStream("fviz-train", recording_id=recording_id)
+        self.rec.save(str(self.part))
+
+    def log(self, step: int, values: dict[str, float]) -> None:
+        self.rec.set_time("step", sequence=int(step))
+        for key, value in values.items():
+            if value is not None and math.isfinite(value):
+                self.rec.log(key, self.rr.Scalars(float(value)))
+
+    def snapshot(self) -> None:
+        """Make ``path`` a complete copy of everything logged so far (atomic rename)."""
+        self.rec.flush()
+        tmp = self.path.with_name(f".{self.path.name}.tmp-{os.getpid()}")
+        shutil.copyfile(self.part, tmp)
+        os.replace(tmp, self.path)
+
+    def close(self) -> None:
+        self.rec.flush()
+        self.rec.disconnect()
+        os.replace(self.part, self.path)
+
+
+class _Quiet:
+    def log(self, *a, **k):
+        pass
+
+    snapshot = close = log
+
+
+def _dist_setup(device_name: str) -> tuple[int, int, torch.device]:
+    world = int(os.environ.get("WORLD_SIZE", "1"))
+    if world <= 1:
+        return 0, 1, resolve_device(device_name)
+    import torch.distributed as dist
+
+    local_rank = int(os.environ.get("LOCAL_RANK", "0"))
+    use_cuda = torch.cuda.is_available() and device_name.lower() in ("auto", "cuda")
+    if use_cuda:
+        torch.cuda.set_device(local_rank)
+        device = torch.device("cuda", local_rank)
+    else:
+        device = torch.device("cpu")
+    if not dist.is_initialized():
+        dist.init_process_group(backend="nccl" if use_cuda else "gloo")
+    return dist.get_rank(), dist.get_world_size(), device
+
+
+# ----------------------------------------------------------------------------------------------- the loop
+
+
+@torch.no_grad()
+def validate(model, loader, recipe: Recipe, device: torch.device, amp_dtype: torch.dtype | None) -> dict[str, float]:
+    """The validation metrics of ``model`` over ``loader`` (see the module docstring)."""
+    norm = recipe.model.variant.rsplit("-", 1)[1]
+    t = recipe.train
+    was_training = model.training
+    model.eval()
+    gen = torch.Generator().manual_seed(12345)
+    loss_sum, n_pairs, f_sum = 0.0, 0, 0.0
+    abs_all, sqr_all, sed_all = [], [], []
+    try:
+        for img_a, img_b, F_t in loader:
+            img_a, img_b, F_t = img_a.to(device), img_b.to(device), F_t.to(device)
+            with torch.autocast(device.type, dtype=amp_dtype or torch.float32, enabled=amp_dtype is not None):
+                F_pred = model(img_a, img_b, strict_norm=False)
+            B = F_t.shape[0]
+            loss_sum += float(f_loss(F_pred, F_t, norm, t.l1_weight, t.l2_weight, t.loss_frame, recipe.input_hw)) * B
+            n_pairs += B
+            xa, xb = sample_points_on_geometry(F_t, recipe.input_hw, recipe.data.val_points, gen)
+            m = epipolar_metrics(F_pred, xa, xb)
+            abs_all.append(m["abs"].flatten().cpu())
+            sqr_all.append(m["abs"].square().flatten().cpu())
+            sed_all.append(m["sed"].flatten().cpu())
+            f_sum += float(f_distance_t(F_pred, F_t).sum())
+    finally:
+        model.train(was_training)
+    if n_pairs == 0:
+        return {}
+    sed = torch.cat(sed_all)
+    sed = sed[torch.isfinite(sed)]
+    return {
+        "loss": loss_sum / n_pairs,
+        "epi_abs": float(torch.cat(abs_all).mean()),
+        "epi_sqr": float(torch.cat(sqr_all).mean()),
+        "sed_px": float(sed.median()) if sed.numel() else float("nan"),
+        "f_dist": f_sum / n_pairs,
+    }
+
+
+def train(
+    recipe: Recipe | str | Path,
+    *,
+    resume: bool = False,
+    progress: bool = False,
+    datasets: tuple[Any, Any] | None = None,
+    record: bool = True,
+    console: Any = None,
+) -> TrainResult:
+    """Train the recipe's model (see the module docstring).  Returns a :class:`TrainResult`.
+
+    ``datasets`` = (train, val) replaces the recipe's data source (tests, benchmarks); they must
+    follow the batch protocol of :mod:`fviz.train.data`.  ``record=False`` skips the .rrd.
+    Raises FvizError for bad input and :class:`TrainingDiverged` when the loss becomes NaN.
+    """
+    from fviz.models.model import FNet
+    from fviz.train.checkpoint import code_version, load_into, make_checkpoint, atomic_save, export_weights, read_checkpoint
+    from fviz.train.data import epoch_batches, make_datasets
+
+    t_start = time.perf_counter()
+    if not isinstance(recipe, Recipe):
+        recipe = load_recipe(recipe)
+    t = recipe.train
+    rank, world, device = _dist_setup(t.device)
+    main = rank == 0
+    norm = recipe.model.variant.rsplit("-", 1)[1]
+    out_dir = resolve_path(t.out_dir.replace("{variant}", recipe.model.variant))
+    ckpt_path = out_dir / "last.pt"
+    if main:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    if not resume and ckpt_path.exists():
+        raise FvizError(
+            f"{out_dir} already holds a checkpoint (last.pt): pass --resume to continue it, or choose another "
+            "train.out_dir (e.g. --set train.out_dir=runs/NEW)"
+        )
+
+    if t.threads:
+        torch.set_num_threads(t.threads)
+    torch.manual_seed(t.seed + rank)
+    model = FNet.from_config(recipe.fnet_config()).to(device)
+    opt = torch.optim.Adam(model.parameters(), lr=t.lr, weight_decay=t.weight_decay)
+    amp_dtype = _amp_dtype(t.amp, device)
+    scaler = torch.amp.GradScaler("cuda", enabled=amp_dtype == torch.float16)
+
+    step = epoch = batch_in_epoch = 0
+    history: list[dict[str, Any]] = []
+    recording_id = str(uuid.uuid4())
+    if resume:
+        if not ckpt_path.exists():
+            raise FvizError(f"--resume: no checkpoint to resume at {ckpt_path}")
+        ckpt = read_checkpoint(ckpt_path)
+        load_into(model, ckpt, what=str(ckpt_path))
+        if ckpt.get("optimizer_state") is None:
+            raise FvizError(f"{ckpt_path}: holds no optimizer state (an exported weights file?); cannot resume from it")
+        opt.load_state_dict(ckpt["optimizer_state"])
+        if ckpt.get("scaler_state") and scaler.is_enabled():
+            scaler.load_state_dict(ckpt["scaler_state"])
+        step, epoch, batch_in_epoch = int(ckpt["step"]), int(ckpt["epoch"]), int(ckpt.get("batch_in_epoch", 0))
+        history = list(ckpt.get("metrics", {}).get("history", []))
+        recording_id = ckpt.get("recording_id") or recording_id
+        if ckpt.get("rng_state") is not None and world == 1:
+            torch.set_rng_state(ckpt["rng_state"])
+
+    loader_workers = t.num_workers
+    if datasets is None:
+        datasets = make_datasets(recipe, render_device=device if t.num_workers == 0 else "cpu")
+        if recipe.data.cache:
+            datasets = tuple(_cache(ds, what, t, progress and main, console) for ds, what in zip(datasets, ("training", "validation")))
+            loader_workers = 0  # in memory: indexing is cheaper than shipping batches from workers
+    train_ds, val_ds = datasets
+    if len(train_ds) == 0:
+        raise FvizError("the training set is empty")
+    steps_per_epoch = len(epoch_batches(len(train_ds), t.batch_size, t.seed, 0, rank, world))
+    if steps_per_epoch == 0:
+        raise FvizError(f"the training set ({len(train_ds)} pairs) is too small for {world} process(es)")
+    total = t.epochs * steps_per_epoch
+    if t.max_steps:
+        total = min(total, t.max_steps)
+
+    net = model
+    if world > 1:
+        net = torch.nn.parallel.DistributedDataParallel(model, device_ids=[device.index] if device.type == "cuda" else None)
+
+    pin = device.type == "cuda" and loader_workers > 0
+    train_sampler = _Batches()
+    train_loader = _loader(train_ds, train_sampler, loader_workers, pin)
+    val_loader = None
+    if main and val_ds is not None and len(val_ds):
+        val_loader = _loader(val_ds, _Batches(epoch_batches(len(val_ds), t.batch_size, 0, 0, shuffle=False)), loader_workers, pin)
+
+    if main and record:
+        name = "train.rrd" if step == 0 else f"train-resume-{step:07d}.rrd"
+        curves: Any = _Curves(out_dir / name, recording_id)
+    else:
+        curves = _Quiet()
+    recording = getattr(curves, "path", None)
+
+    version = code_version() if main else None
+    last_good: dict[str, Any] = {"path": ckpt_path if ckpt_path.exists() else None, "step": step if resume else None}
+    losses: list[float] = []
+    last_checkpoint = [step if resume else -1]
+    metrics: dict[str, float] = {k: v for k, v in history[-1].items() if k not in ("step", "epoch")} if history else {}
+
+    def checkpoint() -> None:
+        if main:
+            state = make_checkpoint(
+                model, optimizer=opt, scaler=scaler, recipe=recipe.to_dict(), metrics={"last": metrics, "history": history},
+                step=step, epoch=epoch, batch_in_epoch=batch_in_epoch, recording_id=recording_id, version=version,
+            )
+            atomic_save(state, ckpt_path)
+            last_good.update(path=ckpt_path, step=step)
+            curves.snapshot()
+        last_checkpoint[0] = step
+        _barrier(world)
+
+    def run_validation() -> None:
+        nonlocal metrics
+        if main and val_loader is not None:
+            metrics = validate(model, val_loader, recipe, device, amp_dtype)
+            history.append({"step": step, "epoch": epoch, **metrics})
+            curves.log(step, {f"val/{k}": v for k, v in metrics.items()})
+            if progress:
+                bar.print(f"step {step} (epoch {epoch}): " + "  ".join(f"{k} {v:.4g}" for k, v in metrics.items()))
+
+    bar = _progress(progress and main, total, step, recipe.model.variant, console)
+    done = step >= total
+    last_validated = history[-1]["step"] if history else -1
+    try:
+        while not done:
+            batches = epoch_batches(len(train_ds), t.batch_size, t.seed, epoch, rank, world)
+            train_sampler.batches = batches[batch_in_epoch:]
+            net.train()
+            for img_a, img_b, F_t in train_loader:
+                img_a = img_a.to(device, non_blocking=True)
+                img_b = img_b.to(device, non_blocking=True)
+                F_t = F_t.to(device, non_blocking=True)
+                with torch.autocast(device.type, dtype=amp_dtype or torch.float32, enabled=amp_dtype is not None):
+                    F_pred = net(img_a, img_b)
+                loss = f_loss(F_pred, F_t, norm, t.l1_weight, t.l2_weight, t.loss_frame, recipe.input_hw)
+                value = _global_mean(loss.detach(), world)
+                if not math.isfinite(value):
+                    where = (f"the last good checkpoint is {last_good['path']} (step {last_good['step']})"
+                             if last_good["path"] is not None else "no checkpoint had been written yet")
+                    raise TrainingDiverged(
+                        f"training stopped: the loss became {value} at step {step + 1} (epoch {epoch + 1}); {where}. "
+                        "Lower train.lr or check the data", step + 1, last_good["path"],
+                    )
+                for group in opt.param_groups:
+                    group["lr"] = lr_at(step, total, t)
+                opt.zero_grad(set_to_none=True)
+                scaler.scale(loss).backward()
+                grad_norm = None
+                if t.grad_clip > 0:
+                    scaler.unscale_(opt)
+                    grad_norm = float(torch.nn.utils.clip_grad_norm_(model.parameters(), t.grad_clip))
+                scaler.step(opt)
+                scaler.update()
+                step += 1
+                batch_in_epoch += 1
+                losses.append(value)
+                if step % t.log_every == 0 or step == 1:
+                    curves.log(step, {"train/loss": value, "train/grad_norm": grad_norm, "train/lr": opt.param_groups[0]["lr"]})
+                bar.advance(value)
+                if t.val_every and step % t.val_every == 0:
+                    run_validation()
+                    last_validated = step
+                    checkpoint()
+                elif t.checkpoint_every and step % t.checkpoint_every == 0:
+                    checkpoint()
+                if step >= total:
+                    done = True
+                    break
+            if batch_in_epoch >= len(batches):  # the epoch is complete
+                epoch += 1
+                batch_in_epoch = 0
+                if not t.val_every:
+                    run_validation()
+                    last_validated = step
+                checkpoint()
+                done = done or epoch >= t.epochs
+        if last_validated != step:
+            run_validation()
+        if last_checkpoint[0] != step:
+            checkpoint()
+        weights = None
+        if main:
+            weights = export_weights(ckpt_path, out_dir / "model.pt", t.export_dtype)
+    finally:
+        bar.close()
+        if main:
+            curves.close()
+        if world > 1:
+            import torch.distributed as dist
+
+            dist.destroy_process_group()
+    return TrainResult(
+        out_dir=out_dir, checkpoint=ckpt_path, weights=weights, recording=recording, step=step, epoch=epoch,
+        metrics=metrics, history=history, losses=losses, seconds=time.perf_counter() - t_start,
+    )
+
+
+def lr_at(step: int, total: int, t) -> float:
+    """Learning rate of the step after ``step`` completed ones: linear warm-up, then constant or cosine to 0."""
+    if t.warmup_steps and step < t.warmup_steps:
+        return t.lr * (step + 1) / t.warmup_steps
+    if t.schedule == "cosine":
+        span = max(total - t.warmup_steps, 1)
+        progress = min(max((step - t.warmup_steps) / span, 0.0), 1.0)
+        return t.lr * 0.5 * (1.0 + math.cos(math.pi * progress))
+    return t.lr
+
+
+def _cache(ds, what: str, t, show: bool, console):
+    from fviz.train.data import CachedPairs
+
+    if ds is None or len(ds) == 0:
+        return ds
+    t0 = time.perf_counter()
+    if show:
+        from rich.progress import Progress
+
+        with Progress(console=console, transient=True) as bar:
+            task = bar.add_task(f"caching {len(ds)} {what} pairs", total=len(ds))
+            cached = CachedPairs(ds, max(t.batch_size, 32), t.num_workers, lambda done, n: bar.update(task, completed=done))
+        bar.console.print(f"cached {len(ds)} {what} pairs in {time.perf_counter() - t0:.0f} s")
+        return cached
+    return CachedPairs(ds, max(t.batch_size, 32), t.num_workers)
+
+
+def _barrier(world: int) -> None:
+    if world > 1:
+        import torch.distributed as dist
+
+        dist.barrier()
+
+
+def _global_mean(x: torch.Tensor, world: int) -> float:
+    if world > 1:
+        import torch.distributed as dist
+
+        x = x.clone()
+        dist.all_reduce(x)
+        x = x / world
+    return float(x)
+
+
+class _NoBar:
+    def advance(self, loss: float) -> None:
+        pass
+
+    def print(self, text: str) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+
+class _Bar:
+    """A rich progress bar (steps, loss, time left); messages printed above it."""
+
+    def __init__(self, total: int, start: int, name: str, console=None):
+        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
+        self.progress = Progress(
+            TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), TextColumn("loss {task.fields[loss]}"),
+            TimeElapsedColumn(), TimeRemainingColumn(), console=console,
+        )
+        self.task = self.progress.add_task(name, total=total, completed=start, loss="-")
+        self.progress.start()
+
+    def advance(self, loss: float) -> None:
+        self.progress.update(self.task, advance=1, loss=f"{loss:.4g}")
+
+    def print(self, text: str) -> None:
+        self.progress.console.print(text)
+
+    def close(self) -> None:
+        self.progress.stop()
+
+
+def _progress(enabled: bool, total: int, start: int, name: str, console=None):
+    return _Bar(total, start, name, console) if enabled else _NoBar()
