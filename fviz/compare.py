@@ -130,7 +130,7 @@ def compare_markdown(c: Comparison) -> str:
         *[f"| {what} | {n} |" for what, n in summary_rows(c)],
     ]
     for title, names in ((f"Only {c.a.estimator} fails", c.only_a_fails), (f"Only {c.b.estimator} fails", c.only_b_fails)):
-        lines += ["", f"## {title}", "", f"| pair | a | b |", "|---|---|---|"]
+        lines += ["", f"## {title}", "", "| pair | a | b |", "|---|---|---|"]
         lines += [f"| `{n}` | {_v(c, n, 0)} | {_v(c, n, 1)} |" for n in names] or ["| (none) | | |"]
     return "\n".join(lines) + "\n"
 

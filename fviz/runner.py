@@ -37,6 +37,7 @@ from typing import Any, Callable, Iterable, Iterator
 
 import numpy as np
 
+from fviz.atomic import tmp_path, write_text
 from fviz.cli.options import EstimatorOptions
 from fviz.data.kitti import PAIR_KINDS
 from fviz.data.pair import PairId
@@ -766,10 +767,6 @@ def _arrow_schema(columns: list[str]):
                       for c in columns])
 
 
-def _atomic(path: Path) -> Path:
-    return path.with_name(f".{path.name}.tmp{os.getpid()}")
-
-
 class _Stats:
     """Finite values per (estimator, metric) for the summary; failures counted per estimator."""
 
@@ -813,7 +810,7 @@ def _write_tables(out_dir: Path, config: RunConfig, columns: list[str], batch: i
     import pyarrow.parquet as pq
 
     csv_path, pq_path = out_dir / CSV_FILE, out_dir / PARQUET_FILE
-    csv_tmp, pq_tmp = _atomic(csv_path), _atomic(pq_path)
+    csv_tmp, pq_tmp = tmp_path(csv_path), tmp_path(pq_path)
     schema, stats, pending = _arrow_schema(columns), _Stats(SUMMARY_METRICS + PAPER_COLUMNS), []
     with open(csv_tmp, "w", newline="") as f, pq.ParquetWriter(pq_tmp, schema) as pw:
         writer = csv.DictWriter(f, columns, restval="")
@@ -901,10 +898,7 @@ def summary_markdown(config: RunConfig, stats: _Stats) -> str:
 
 
 def write_summary(path: Path, config: RunConfig, stats: _Stats) -> Path:
-    tmp = _atomic(path)
-    tmp.write_text(summary_markdown(config, stats))
-    os.replace(tmp, path)
-    return path
+    return write_text(path, summary_markdown(config, stats))
 
 
 def _light_blueprint():

@@ -10,6 +10,7 @@ import os
 from pathlib import Path
 import numpy as np
 
+from fviz.atomic import tmp_path
 from fviz.data.pair import Pair
 from fviz.errors import FvizError
 from fviz.evaluate import GT_NAME, PairResult
@@ -18,10 +19,6 @@ from fviz.record import layout as L
 
 JPEG_QUALITY = 75
 SCALAR_METRICS = ("epi_abs", "epi_sqr", "sed_mean", "sed_median", "sampson_median", "inlier_ratio", "f_dist", "epipole_err_deg")
-
-
-def atomic_tmp(path: Path) -> Path:
-    return path.with_name(f".{path.name}.tmp{os.getpid()}")
 
 
 class RecordingWriter:
@@ -35,7 +32,7 @@ class RecordingWriter:
             self.path.parent.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
             raise FvizError(f"--out {self.path}: cannot create its folder ({exc.strerror})") from None
-        self.tmp = atomic_tmp(self.path)
+        self.tmp = tmp_path(self.path)
         self.rec = rr.RecordingStream(app_id)
         self.rec.set_log_time_enabled(False)  # deterministic files: only the ``pair`` timeline
         try:

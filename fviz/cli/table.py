@@ -1,0 +1,25 @@
+"""``fviz table RUN_DIR``: the paper's Table 1 (Markdown and CSV) from an ``fviz eval`` run."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+
+def table(run_dir: Path = typer.Argument(..., help="An fviz eval --out-dir (with metrics.csv and run.json).")) -> None:
+    """Rows: network variants (one per architecture and head, the norm its checkpoint was trained with picks
+    the columns), 8-point, LMedS, RANSAC, other estimators, Ground-truth; columns: EPI-ABS / EPI-SQR per norm.
+
+    Example: fviz eval --synthetic --seeds 0:500 -e 8point -e lmeds -e ransac -e deep:runs/a/model.pt ...
+    --out-dir runs/t && fviz table runs/t
+    """
+    from fviz.table import write_table
+
+    md, csv_path = write_table(run_dir)
+    print(md.read_text(), end="")
+    print(f"written: {md} {csv_path}")
+
+
+def register(app: typer.Typer) -> None:
+    app.command("table")(table)

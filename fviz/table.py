@@ -1,0 +1,99 @@
+"""The paper's Table 1 from an ``fviz eval`` run: rows are network variants plus 8-point, LMedS, RANSAC
+(and any other estimator) and Ground-truth; columns EPI-ABS and EPI-SQR under each normalization.
+
+A network is trained with one normalization layer, so a variant's row takes its ETR, FBN and ABS
+columns from the three checkpoints of that architecture and head trained with each norm (cells
+without such a checkpoint stay empty). Classical estimators and the ground truth are normalized
+each way. Values are means over pairs of the per-pair means (see :mod:`fviz.evaluate`).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from collections import defaultdict
+from pathlib import Path
+
+from fviz.atomic import write_text
+from fviz.errors import FvizError
+
+NORMS = ("etr", "fbn", "abs")
+CLASSICAL_LABELS = {"8point": "8-point", "lmeds": "LMedS", "ransac": "RANSAC", "7point": "7-point", "magsac": "MAGSAC++",
+                    "constant": "Constant F (mean GT)", "gt": "Ground-truth"}
+HEAD_LABELS = {("base", False): "Base", ("base", True): "POS", ("epi", False): "EPI", ("epi", True): "EPI + POS",
+               ("rec", False): "REC", ("rec", True): "REC + POS"}
+ARCH_LABELS = {"single": "Single-stream", "siamese": "Siamese"}
+
+
+def deep_variants(specs: list[str]) -> dict[str, dict]:
+    """Display name -> parsed variant ({arch, head, pos, norm}) of every deep estimator spec."""
+    from fviz.estimators.deep import bundled_weights
+    from fviz.estimators.registry import display_name
+    from fviz.models.model import parse_variant
+    from fviz.train.checkpoint import read_checkpoint
+
+    out = {}
+    for spec in specs:
+        head, _, rest = spec.partition(":")
+        if head != "deep":
+            continue
+        path = Path(rest) if rest else bundled_weights()
+        config = read_checkpoint(path).get("model_config") or {}
+        variant = "{arch}-{head}{pos}-{norm}".format(**{**config, "pos": "-pos" if config.get("pos") else ""})
+        out[display_name(spec)] = parse_variant(variant)
+    return out
+
+
+def paper_table(run_dir: str | Path) -> tuple[list[str], list[list[str]]]:
+    """(header, rows) of Table 1 from ``run_dir/metrics.csv`` and ``run_dir/run.json``."""
+    run_dir = Path(run_dir)
+    csv_path, cfg_path = run_dir / "metrics.csv", run_dir / "run.json"
+    for p in (csv_path, cfg_path):
+        if not p.is_file():
+            raise FvizError(f"{p}: missing (run fviz eval --out-dir {run_dir} first)")
+    specs = json.loads(cfg_path.read_text())["options"]["names"]
+    variants = deep_variants(specs)
+    sums: dict[tuple[str, str], list[float]] = defaultdict(list)
+    order: dict[str, None] = {}
+    with open(csv_path, newline="") as f:
+        for row in csv.DictReader(f):
+            est = row["estimator"]
+            if row.get("error"):
+                continue
+            if est in variants:
+                v = variants[est]
+                label = f"{ARCH_LABELS[v['arch']]} {HEAD_LABELS[(v['head'], v['pos'])]}"
+                cells = [v["norm"]]
+            else:
+                label = CLASSICAL_LABELS.get(est, est)
+                cells = list(NORMS)
+            order[label] = None
+            for n in cells:
+                for m in ("abs", "sqr"):
+                    x = row.get(f"epi_{m}_{n}", "")
+                    if x not in ("", "nan") and math.isfinite(float(x)):
+                        sums[(label, f"{m}_{n}")].append(float(x))
+    gt = CLASSICAL_LABELS["gt"]
+    labels = [lbl for lbl in order if lbl != gt] + ([gt] if gt in order else [])
+    header = ["Method"] + [f"{n.upper()} EPI-{m.upper()}" for n in NORMS for m in ("abs", "sqr")]
+    rows = []
+    for lbl in labels:
+        vals = [sums.get((lbl, f"{m}_{n}"), []) for n in NORMS for m in ("abs", "sqr")]
+        rows.append([lbl] + [f"{sum(v) / len(v):.4g}" if v else "" for v in vals])
+    return header, rows
+
+
+def write_table(run_dir: str | Path) -> tuple[Path, Path]:
+    """table.md and table.csv in the run folder."""
+    run_dir = Path(run_dir)
+    header, rows = paper_table(run_dir)
+    md = ["| " + " | ".join(header) + " |", "|---" * len(header) + "|"] + ["| " + " | ".join(r) + " |" for r in rows]
+    note = ("\nEPI-ABS = mean |x_b^T F x_a|, EPI-SQR = mean (x_b^T F x_a)^2 per pair over matches whose ground-truth "
+            "symmetric epipolar distance is below the run's threshold, then averaged over pairs; F normalized by the "
+            "column's norm (ETR: F33, FBN: Frobenius, ABS: max |entry|). Empty: undefined (ETR with F33 = 0) or no model.\n")
+    md_path, csv_path = run_dir / "table.md", run_dir / "table.csv"
+    write_text(md_path, "\n".join(md) + "\n" + note)
+    lines = [",".join(header)] + [",".join(f'"{c}"' if "," in c else c for c in r) for r in rows]
+    write_text(csv_path, "\n".join(lines) + "\n")
+    return md_path, csv_path
