@@ -38,7 +38,7 @@ from typing import Any, Callable, Iterable, Iterator
 import numpy as np
 
 from fviz.atomic import tmp_path, write_text
-from fviz.cli.options import EstimatorOptions
+from fviz.estimators.options import EstimatorOptions
 from fviz.data.kitti import PAIR_KINDS
 from fviz.data.pair import PairId
 from fviz.errors import FvizError

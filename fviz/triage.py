@@ -201,7 +201,7 @@ def check_choice(config, records_sample: dict[str, Any] | None, by: str, metric:
 
 def inspect_command(config, source, ref: dict[str, Any]) -> str:
     """The ``fviz inspect pair`` command that reopens a pair with the run's options."""
-    from fviz.cli.options import EstimatorOptions
+    from fviz.estimators.options import EstimatorOptions
     from fviz.data.pair import PairId
     from fviz.runner import CONSTANT
 

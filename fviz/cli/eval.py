@@ -92,6 +92,7 @@ class RunArgs:
         """The RunConfig of the flags, or, without selection flags, the run already in --out-dir."""
         from dataclasses import replace
 
+        from fviz.estimators.options import EstimatorOptions
         from fviz.runner import RunConfig, parse_shard, read_config
 
         existing = None if self.selects else read_config(self.out_dir)
@@ -100,8 +101,8 @@ class RunArgs:
                 existing = replace(existing, options=replace(existing.options, names=tuple(self.estimator)))
             return replace(existing, shard=parse_shard(self.shard) if self.shard else existing.shard,
                            full=existing.full or self.full)
-        opts = o.EstimatorOptions(tuple(self.estimator or default_estimators), self.features, self.max_keypoints,
-                                  self.ratio, self.mutual, self.threshold, self.confidence, self.max_iters, self.seed)
+        opts = EstimatorOptions(tuple(self.estimator or default_estimators), self.features, self.max_keypoints,
+                                self.ratio, self.mutual, self.threshold, self.confidence, self.max_iters, self.seed)
         return RunConfig(self.selection(), opts, self.norm, self.eval_threshold, self.full,
                          parse_shard(self.shard) if self.shard else None)
 

@@ -60,11 +60,12 @@ def pair(
     # rerun takes ~0.5 s to import: let it load while the features are computed.
     threading.Thread(target=__import__, args=("rerun",), daemon=True).start()
     from fviz.errors import FvizError
+    from fviz.estimators.options import EstimatorOptions
     from fviz.estimators.registry import DEFAULT_ESTIMATORS
     from fviz.evaluate import MIN_MATCHES, evaluate_pair
     from fviz.record.writer import write_pair_recording
 
-    opts = o.EstimatorOptions(tuple(estimator or DEFAULT_ESTIMATORS), features, max_keypoints, ratio, mutual,
+    opts = EstimatorOptions(tuple(estimator or DEFAULT_ESTIMATORS), features, max_keypoints, ratio, mutual,
                               threshold, confidence, max_iters, seed)
     if lines < 0:
         raise FvizError(f"--lines {lines}: must be >= 0")

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Optional
 
@@ -50,33 +49,3 @@ def kitti_root(root: Path | None) -> Path:
     if os.environ.get(KITTI_ROOT_ENV):
         return Path(os.environ[KITTI_ROOT_ENV])
     raise FvizError(f"--kitti-root: missing (or set ${KITTI_ROOT_ENV}); use --synthetic for a scene that needs no dataset")
-
-
-@dataclass(frozen=True)
-class EstimatorOptions:
-    names: tuple[str, ...]
-    features: str = "sift"
-    max_keypoints: int = 2000
-    ratio: float = 0.8
-    mutual: bool = True
-    threshold: float = 1.0
-    confidence: float = 0.999
-    max_iters: int = 10000
-    seed: int = 0
-
-    def feature_config(self):
-        from fviz.estimators.features import FeatureConfig
-
-        return FeatureConfig(self.features, self.max_keypoints, self.ratio, self.mutual)
-
-    def estimators(self):
-        """[(name, fn)] resolved once (a deep model loads once)."""
-        from fviz.estimators import get_estimator
-        from fviz.estimators.classical import RobustConfig
-
-        cfg = RobustConfig(self.threshold, self.confidence, self.max_iters, self.seed)
-        if len(set(self.names)) != len(self.names):
-            raise FvizError(f"--estimator: repeated name in {', '.join(self.names)}")
-        from fviz.estimators.registry import display_name
-
-        return [(display_name(n), get_estimator(n, cfg)) for n in self.names]
