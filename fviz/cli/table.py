@@ -8,8 +8,10 @@ import typer
 
 
 def table(run_dir: Path = typer.Argument(..., help="An fviz eval --out-dir (with metrics.csv and run.json).")) -> None:
-    """Rows: network variants (one per architecture and head, the norm its checkpoint was trained with picks
-    the columns), 8-point, LMedS, RANSAC, other estimators, Ground-truth; columns: EPI-ABS / EPI-SQR per norm.
+    """The paper's Table 1 from an eval run: table.md and table.csv.
+
+    Rows: network variants (one per architecture and head; the norm a checkpoint was trained with picks its
+    columns), 8-point, LMedS, RANSAC, other estimators, Ground-truth. Columns: EPI-ABS / EPI-SQR per norm.
 
     Example: fviz eval --synthetic --seeds 0:500 -e 8point -e lmeds -e ransac -e deep:runs/a/model.pt ...
     --out-dir runs/t && fviz table runs/t
