@@ -80,11 +80,12 @@ def _nearest_two(da: np.ndarray, db: np.ndarray) -> tuple[np.ndarray, np.ndarray
     if da.dtype == np.float32:
         d2 = (da * da).sum(1)[:, None] + (db * db).sum(1)[None, :] - 2.0 * (da @ db.T)
         np.maximum(d2, 0, out=d2)
-        two = np.argpartition(d2, 1, axis=1)[:, :2]
-        rows = np.arange(len(da))[:, None]
-        two = np.take_along_axis(two, np.argsort(d2[rows, two], axis=1), 1)
-        dist = np.sqrt(d2[rows, two])
-        return two[:, 0], dist[:, 0], dist[:, 1], d2.argmin(0)
+        back = d2.argmin(0)
+        rows = np.arange(len(da))
+        best = d2.argmin(1)
+        d1 = np.sqrt(d2[rows, best])
+        d2[rows, best] = np.inf  # the second nearest is the nearest of the rest
+        return best, d1, np.sqrt(d2.min(1)), back
     bf = cv2.BFMatcher(cv2.NORM_HAMMING)
     knn = [m if len(m) == 2 else None for m in bf.knnMatch(da, db, k=2)]
     best = np.array([m[0].trainIdx if m else -1 for m in knn])
