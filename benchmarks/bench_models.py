@@ -8,7 +8,7 @@ What it measures (the evidence for the defaults in fviz/models/model.py):
 
 1. every variant at the default configuration: parameters and the bytes of its saved weights
    (float32 and float16 state dicts, as torch.save writes them) against the 20 MB budget;
-2. for each input size and both architectures (REC+POS head, FBN):
+2. for each input size and both architectures (``--head``, default REC; FBN):
    - parameters and file size (they do not depend on the input size: adaptive pooling grid),
    - CPU inference ms per pair (batch 1, eval mode, median of ``--repeat`` runs after warm-up,
      ``predict_F`` preprocessing excluded),
@@ -108,7 +108,7 @@ def train_short(arch: str, hw: tuple[int, int], args) -> FNet:
     from fviz.train.recipe import load_recipe
 
     overrides = [
-        f"model.variant={arch}-rec-pos-fbn", f"model.input_size=[{hw[0]}, {hw[1]}]", f"model.width={args.width}",
+        f"model.variant={arch}-{args.head}-fbn", f"model.input_size=[{hw[0]}, {hw[1]}]", f"model.width={args.width}",
         f"train.max_steps={args.steps}", f"train.batch_size={args.batch}", "train.val_every=0", "train.epochs=1000",
         f"train.device={args.device}", "data.val_size=16", f"train.threads={args.threads}",
         f"train.out_dir={tempfile.mkdtemp(prefix='fviz-bench-')}",
@@ -123,6 +123,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--sizes", default="64x208,96x320,128x416", help="input sizes HxW, comma separated")
     ap.add_argument("--archs", default="siamese,single")
+    ap.add_argument("--head", default="rec", help="head of the per-size rows: rec, rec-pos, base, base-pos, epi, epi-pos (FBN)")
     ap.add_argument("--steps", type=int, default=300, help="training steps per configuration (0: skip accuracy)")
     ap.add_argument("--batch", type=int, default=16)
     ap.add_argument("--width", type=int, default=128, help="filters of the single-stream block in the accuracy runs")
@@ -162,13 +163,13 @@ def main() -> None:
         report["straight_ahead_baseline"] = base
         console.print("constant straight-ahead F: " + "  ".join(f"{k} {v:.4g}" for k, v in base.items()))
 
-    table = Table(title=f"REC+POS FBN per input size ({torch.get_num_threads()} CPU threads; accuracy after {args.steps} steps, batch {args.batch}, width {args.width})")
+    table = Table(title=f"{args.head.upper()} FBN per input size ({torch.get_num_threads()} CPU threads; accuracy after {args.steps} steps, batch {args.batch}, width {args.width})")
     for col in ("arch", "input", "params", "MB fp32", "MB fp16", "CPU ms/pair", "EPI-ABS", "EPI-SQR", "SED px@128x416", "train s"):
         table.add_column(col, justify="right")
     for hw in sizes:
         for arch in archs:
             torch.manual_seed(0)
-            m = FNet(arch, "rec", True, "fbn", input_hw=hw)
+            m = FNet.from_variant(f"{arch}-{args.head}-fbn", input_hw=hw)
             row = {"arch": arch, "input_hw": list(hw), "params": count_parameters(m),
                    "bytes_fp32": state_bytes(m, torch.float32), "bytes_fp16": state_bytes(m, torch.float16),
                    "cpu_ms_per_pair": time_pair(m, args.repeat)}

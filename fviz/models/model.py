@@ -26,12 +26,22 @@ The paper's layer list applied at full KITTI resolution (376 x 1241) keeps a 128
   location information survives the large windows;
 - the FC has ``hidden`` = 256 units: 128 ch x 3 (POS) x 30 windows x 256 = 2.95 M weights.
 
-Every variant then has at most 3.3 M parameters (13 MB in float32, 6.6 MB in float16; the weights
-file that training exports is float16).  ``benchmarks/bench_models.py`` measures parameters, file
-size, CPU ms/pair and a short-training validation EPI-ABS for several input sizes (64 x 208,
-96 x 320, 128 x 416): Siamese models stay well under the 30 ms/pair CPU target at every size, the
-single-stream ones (full-resolution 128-channel 1x1 convolution) grow with the pixel count, and
-96 x 320 is where single-stream still meets it.
+Every variant then has at most 3.17 M parameters (12.7 MB in float32, 6.4 MB in float16; the weights
+file that training exports is float16); without POS 1.0-1.2 M (4.0-4.8 MB).
+
+Measured with ``benchmarks/bench_models.py`` (REC+POS FBN, CPU ms per pair at batch 1, a quiet
+2-core x86 VM, 2 threads / 1 thread):
+
+    input      Siamese          single-stream
+    64 x 208   3.3 / 5.1 ms     5.4 / 10.5 ms
+    96 x 320   5.6 / 10.4 ms    27.4 / 45.1 ms
+    128 x 416  8.9 / 17.1 ms    51.4 / 92.5 ms
+
+Siamese models are well under the 30 ms/pair CPU target at every size; single-stream ones run their
+128-channel 1x1 convolution at full input resolution and grow with the pixel count: 96 x 320 is the
+largest size where they still meet it (on 2 threads).  Smaller inputs also lose displacement
+information (a 2 degree yaw moves the image by ~3 px at 160 px width, ~6 px at 320), which is what
+the accuracy columns of the benchmark compare.
 """
 
 from __future__ import annotations

@@ -3,10 +3,15 @@
 Loss (paper, Sec. 4): L1 + L2 between the predicted and the target F, both normalized by the
 model's layer, per pair ``l1_weight * mean|F - F_t| + l2_weight * mean (F - F_t)^2``.  F is only
 defined up to sign: for fbn and abs the loss of a pair is the smaller of the losses of F and -F
-(ETR fixes the sign itself).  ``loss_frame = "pixel"`` (the paper) compares the matrices in
-model-input pixels; ``"conditioned"`` compares them after mapping both to coordinates where the image
-spans [-1, 1] (:func:`fviz.models.heads.conditioning_matrix`) and normalizing again, which weighs
-all nine entries alike instead of letting the last row and column dominate.
+(ETR fixes the sign itself).  ``loss_frame = "conditioned"`` (the default) compares the matrices
+after mapping both to coordinates where the image spans [-1, 1] along its long side
+(:func:`fviz.models.heads.conditioning_matrix`) and normalizing them again; ``"pixel"`` compares
+them in model-input pixels, the literal reading of the paper.  Measured on synthetic scenes (48 x 160,
+Siamese REC+POS FBN, 1500 steps of batch 16, lr 1e-3): the pixel-frame loss never left its starting
+plateau (validation loss 0.357, f_dist 1.03, the network collapsed to F ~ e3 e3^T), while the
+conditioned one went below the constant straight-ahead F (median epipolar distance 1.34 px vs 1.50 px).
+In pixels the entries of F differ by (W / 2)^2 and the last row and column dominate the loss.
+(The authors' public code builds K^-1 without the principal point, in effect a centred frame too.)
 
 Optimizer: Adam (``lr``, ``weight_decay``), gradient norm clipped at ``grad_clip`` (1.0); the
 learning rate is constant or follows a cosine to 0 at the last step (``schedule``), after

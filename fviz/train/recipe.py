@@ -103,7 +103,7 @@ class TrainSection:
     max_steps: int = field(default=0, metadata={"min": 0})  # > 0: stop after this many optimizer steps
     l1_weight: float = field(default=1.0, metadata={"min": 0.0})
     l2_weight: float = field(default=1.0, metadata={"min": 0.0})
-    loss_frame: str = field(default="pixel", metadata=_choices("pixel", "conditioned"))
+    loss_frame: str = field(default="conditioned", metadata=_choices("conditioned", "pixel"))
     grad_clip: float = field(default=1.0, metadata={"min": 0.0})  # max gradient norm (0: off)
     seed: int = 0
     device: str = "auto"  # auto | cpu | cuda | cuda:N
