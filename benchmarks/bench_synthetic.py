@@ -1,8 +1,9 @@
 """Throughput of the synthetic pair generator (fviz.data.synthetic).
 
 Prints pairs/s of ``render_batch`` (images + F, no correspondences) at 1242x375 on the CPU for a
-few batch sizes, on CUDA too when available, and ms per ``synthetic_pair`` (with the exact
-correspondences).  Usage: python benchmarks/bench_synthetic.py [--seconds S] [--threads N ...]
+few batch sizes; on CUDA, when available, at the training input 320x96 and at 1242x375, with the
+batch replayed as a CUDA graph (the default) and run eagerly; and ms per ``synthetic_pair`` (with
+the exact correspondences).  Usage: python benchmarks/bench_synthetic.py [--seconds S] [--threads N ...]
 """
 
 from __future__ import annotations
@@ -12,12 +13,14 @@ import time
 
 import torch
 
+from fviz.data import synthetic
 from fviz.data.synthetic import SceneConfig, render_batch, synthetic_pair
 
 
 def pairs_per_second(batch: int, seconds: float, device: str, cfg: SceneConfig) -> float:
     """Render batches of consecutive seeds for about ``seconds``; pairs per wall-clock second."""
-    render_batch(list(range(batch)), cfg, device)  # warm-up: texture bank, allocator
+    for i in range(3):  # warm-up: texture bank, allocator, CUDA graph capture
+        render_batch(list(range(i * batch, (i + 1) * batch)), cfg, device)
     sync = torch.cuda.synchronize if device == "cuda" else (lambda: None)
     sync()
     done, start = 0, time.perf_counter()
@@ -43,8 +46,15 @@ def main() -> None:
             print(f"  cpu  {threads} thread(s) batch {batch:3d}: {rate:7.1f} pairs/s")
     torch.set_num_threads(default_threads)
     if torch.cuda.is_available():
-        for batch in (16, 64):
-            print(f"  cuda batch {batch:3d}: {pairs_per_second(batch, args.seconds, 'cuda', cfg):7.1f} pairs/s")
+        print(f"cuda: {torch.cuda.get_device_name()}")
+        for graphs in (True, False):
+            synthetic.CUDA_GRAPHS = graphs
+            for c in (SceneConfig(width=320, height=96), cfg):
+                for batch in (16, 64, 256):
+                    rate = pairs_per_second(batch, args.seconds, "cuda", c)
+                    print(f"  cuda {'graph' if graphs else 'eager'} {c.width}x{c.height} batch {batch:3d}: {rate:9.1f} pairs/s"
+                          f"  ({batch / rate * 1e3:7.2f} ms/batch, {2 * rate:9.0f} views/s)")
+        synthetic.CUDA_GRAPHS = True
     for stereo in (False, True):
         c = SceneConfig(stereo=stereo)
         synthetic_pair(0, c)
