@@ -42,8 +42,8 @@ import torch
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from fviz.models import VARIANTS, FNet, count_parameters, predict_F  # noqa: E402
-from fviz.models.model import FNetConfig  # noqa: E402
+from fviz.models import VARIANTS, FNet, count_parameters, predict_F
+from fviz.models.model import FNetConfig
 
 REF_HW = (128, 416)
 
@@ -75,7 +75,7 @@ def reference_val(n: int, seed: int = 7):
     from fviz.data.synthetic import SceneConfig, render_batch
 
     out = render_batch(list(range(10**8, 10**8 + n)), SceneConfig(width=REF_HW[1], height=REF_HW[0]))
-    to_u8 = lambda x: (x[:, 0] * 255).round().to(torch.uint8).numpy()  # noqa: E731
+    to_u8 = lambda x: (x[:, 0] * 255).round().to(torch.uint8).numpy()
     return to_u8(out["image_a"]), to_u8(out["image_b"]), out["F"].numpy()
 
 

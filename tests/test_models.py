@@ -9,11 +9,25 @@ import pytest
 import torch
 
 from fviz.errors import FvizError
-from fviz.geometry import NormalizationError, f_distance, fundamental_from_motion, normalize
-from fviz.models import VARIANTS, FNet, FNetConfig, count_parameters, parse_variant, predict_F, variant_name
+from fviz.geometry import (
+    NormalizationError,
+    f_distance,
+    fundamental_from_motion,
+    normalize,
+)
+from fviz.models import (
+    VARIANTS,
+    FNet,
+    FNetConfig,
+    count_parameters,
+    parse_variant,
+    predict_F,
+    variant_name,
+)
 from fviz.models.heads import RecHead, euler_to_rotation, fundamental_from_params
 from fviz.models.normalization import ETR_TRAIN_EPS, normalize_f
 from fviz.models.predict import f_to_full, f_to_input, scale_matrix, to_model_input
+
 
 @pytest.fixture(autouse=True, scope="module")
 def _one_thread():

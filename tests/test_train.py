@@ -12,7 +12,13 @@ import torch
 
 from fviz.errors import FvizError
 from fviz.models import FNet
-from fviz.train.checkpoint import export_weights, load_into, load_model, read_checkpoint, save_checkpoint
+from fviz.train.checkpoint import (
+    export_weights,
+    load_into,
+    load_model,
+    read_checkpoint,
+    save_checkpoint,
+)
 from fviz.train.data import TensorPairs, epoch_batches, synthetic_seeds
 from fviz.train.loop import TrainingDiverged, f_loss, sample_points_on_geometry, train
 from fviz.train.recipe import Recipe, load_recipe
@@ -89,6 +95,16 @@ def test_a_few_steps_lower_the_loss(tmp_path):
     assert res.weights is not None and res.weights.is_file() and res.checkpoint.is_file()
 
 
+@pytest.mark.parametrize("head", ["base", "rec", "epi"])
+@pytest.mark.parametrize("norm", ["etr", "fbn", "abs"])
+def test_every_head_and_norm_trains(tmp_path, head, norm):
+    arch, pos = ("single", False) if norm == "abs" else ("siamese", norm == "etr")
+    variant = f"{arch}-{head}{'-pos' if pos else ''}-{norm}"
+    recipe = _recipe(tmp_path, variant=variant, max_steps=3, epochs=2)
+    res = train(recipe, datasets=(_tiny_pairs(8, norm), _tiny_pairs(4, norm, seed=1)), record=False)
+    assert res.step == 3 and all(math.isfinite(v) for v in res.losses) and math.isfinite(res.metrics["sed_px"])
+
+
 def test_checkpoint_round_trip_same_outputs(tmp_path):
     torch.manual_seed(0)
     model = FNet.from_variant("siamese-epi-pos-abs", input_hw=(32, 96), width=8, hidden=16, pool_grid=(2, 4))
@@ -135,7 +151,7 @@ def test_resume_continues_the_step_count(tmp_path):
     assert second.step == 7 and len(second.losses) == 4
     assert read_checkpoint(second.checkpoint)["step"] == 7
     assert second.recording.name == "train-resume-0000003.rrd" and second.recording.is_file()
-    assert [h["step"] for h in second.history][0] == first.history[0]["step"]  # history carried over
+    assert second.history[0]["step"] == first.history[0]["step"]  # history carried over
     # the resumed run follows the same batches as an uninterrupted one
     recipe2 = _recipe(tmp_path / "straight", max_steps=7, epochs=5)
     straight = train(recipe2, datasets=data, record=False)
@@ -215,7 +231,7 @@ def test_epoch_batches_are_deterministic_and_split_across_ranks():
     assert epoch_batches(10, 3, 0, 0) == epoch_batches(10, 3, 0, 0) != epoch_batches(10, 3, 0, 1)
     assert all(len(b) == 3 for b in epoch_batches(10, 3, 0, 0))
     r0, r1 = epoch_batches(11, 2, 0, 0, 0, 2), epoch_batches(11, 2, 0, 0, 1, 2)
-    assert len(r0) == len(r1) and not set(sum(r0, [])) & set(sum(r1, []))
+    assert len(r0) == len(r1) and not {i for b in r0 for i in b} & {i for b in r1 for i in b}
     tr, va = synthetic_seeds(3, 100, 10)
     assert not set(tr) & set(va)
 
@@ -226,7 +242,7 @@ def test_synthetic_dataset_targets_match_the_renderer():
     from fviz.train.data import make_datasets
 
     recipe = _recipe(Path("/nonexistent"), variant="single-base-abs")
-    train_ds, val_ds = make_datasets(recipe)
+    train_ds, _ = make_datasets(recipe)
     a, b, F = train_ds[[0, 1]]
     assert a.shape == (2, 1, 32, 96) and b.shape == (2, 1, 32, 96) and F.shape == (2, 3, 3)
     ref = render_batch([train_ds.seeds[0]], SceneConfig(width=96, height=32))
@@ -251,7 +267,7 @@ def test_kitti_odometry_pairs_at_the_input_size(kitti_root):
     train_ds, val_ds = make_datasets(recipe)
     assert len(train_ds) + len(val_ds) == 11 + 10
     assert max(i.frame for i in train_ds.items) < min(i.frame for i in val_ds.items) + 2  # tail split
-    a, b, F = train_ds[[0]]
+    a, _, F = train_ds[[0]]
     assert a.shape == (1, 1, 32, 96) and 0 <= float(a.min()) and float(a.max()) <= 1
     pair = open_dataset(kitti_root, sequence="00").pair(0, kind="temporal", step=1, cams=(0, 0))
     expected = normalize(f_to_input(pair.F_gt, pair.size_a, pair.size_b, (32, 96)), "fbn")

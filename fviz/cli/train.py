@@ -10,14 +10,13 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import List
 
 import typer
 
 
 def train(
     recipe: Path = typer.Argument(..., help="Recipe TOML file (see recipes/)."),
-    set_: List[str] = typer.Option([], "--set", help="Override a recipe key, e.g. --set train.lr=3e-4 --set model.variant=single-epi-abs (repeatable)."),
+    set_: list[str] = typer.Option([], "--set", help="Override a recipe key, e.g. --set train.lr=3e-4 --set model.variant=single-epi-abs (repeatable)."),
     resume: bool = typer.Option(False, "--resume", help="Continue from the last checkpoint in train.out_dir."),
 ) -> None:
     """Train a fundamental-matrix network from a recipe; writes last.pt, model.pt and train.rrd to train.out_dir."""

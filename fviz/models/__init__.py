@@ -11,12 +11,45 @@ Correspondences", ECCV-W 2018), in torch.  One file per concern:
 Importing this package imports torch.
 """
 
-from fviz.models.model import ARCHS, DEFAULT_INPUT_HW, HEAD_NAMES, VARIANTS, FNet, FNetConfig, count_parameters, parse_variant, variant_name, variants
+from fviz.models.model import (
+    ARCHS,
+    DEFAULT_INPUT_HW,
+    HEAD_NAMES,
+    VARIANTS,
+    FNet,
+    FNetConfig,
+    count_parameters,
+    parse_variant,
+    variant_name,
+    variants,
+)
 from fviz.models.normalization import ABS, ETR, FBN, normalize_f
-from fviz.models.predict import f_to_full, f_to_input, predict_F, scale_matrix, to_model_input
+from fviz.models.predict import (
+    f_to_full,
+    f_to_input,
+    predict_F,
+    scale_matrix,
+    to_model_input,
+)
 
 __all__ = [
-    "ABS", "ARCHS", "DEFAULT_INPUT_HW", "ETR", "FBN", "FNet", "FNetConfig", "HEAD_NAMES", "VARIANTS", "count_parameters",
-    "f_to_full", "f_to_input", "normalize_f", "parse_variant", "predict_F", "scale_matrix", "to_model_input",
-    "variant_name", "variants",
+    "ABS",
+    "ARCHS",
+    "DEFAULT_INPUT_HW",
+    "ETR",
+    "FBN",
+    "HEAD_NAMES",
+    "VARIANTS",
+    "FNet",
+    "FNetConfig",
+    "count_parameters",
+    "f_to_full",
+    "f_to_input",
+    "normalize_f",
+    "parse_variant",
+    "predict_F",
+    "scale_matrix",
+    "to_model_input",
+    "variant_name",
+    "variants",
 ]

@@ -29,8 +29,9 @@ training frames except at one boundary).
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 import torch
@@ -104,8 +105,19 @@ class CachedPairs(torch.utils.data.Dataset):
     def __len__(self) -> int:
         return len(self.F)
 
+    @property
+    def nbytes(self) -> int:
+        return sum(t.numel() * t.element_size() for t in (self.img_a, self.img_b, self.F) if t is not None)
+
+    def to(self, device: str | torch.device) -> CachedPairs:
+        """Move the cache (e.g. onto the GPU: batches are then gathered there, no host copies)."""
+        for name in ("img_a", "img_b", "F"):
+            if getattr(self, name) is not None:
+                setattr(self, name, getattr(self, name).to(device))
+        return self
+
     def __getitem__(self, idx):
-        i = torch.as_tensor(_as_indices(idx), dtype=torch.long)
+        i = torch.as_tensor(_as_indices(idx), dtype=torch.long, device=self.F.device)
         return self.img_a[i].float() / 255.0, self.img_b[i].float() / 255.0, self.F[i]
 
 

@@ -45,7 +45,8 @@ Device: ``train.device = "auto"`` picks CUDA when available, else the CPU.  On C
 uses bf16 autocast where supported, else fp16 with a gradient scaler; on the CPU training runs in
 float32.  Data loading uses ``num_workers`` worker processes (synthetic scenes with 0 workers are
 rendered in the main process on the training device).  ``data.cache = true`` renders / loads every
-pair once (with those workers) into memory and trains all epochs from there.
+pair once (with those workers) into memory (on the GPU when it fits in a quarter of the free GPU
+memory) and trains all epochs from there; under torchrun every process caches the whole set.
 
 Multi-GPU: run under torchrun, e.g. ``torchrun --nproc_per_node 4 -m fviz train RECIPE`` (any
 launcher that sets WORLD_SIZE / RANK / LOCAL_RANK).  With WORLD_SIZE > 1 the model is wrapped in
@@ -316,7 +317,14 @@ def train(
     Raises FvizError for bad input and :class:`TrainingDiverged` when the loss becomes NaN.
     """
     from fviz.models.model import FNet
-    from fviz.train.checkpoint import code_version, load_into, make_checkpoint, atomic_save, export_weights, read_checkpoint
+    from fviz.train.checkpoint import (
+        atomic_save,
+        code_version,
+        export_weights,
+        load_into,
+        make_checkpoint,
+        read_checkpoint,
+    )
     from fviz.train.data import epoch_batches, make_datasets
 
     t_start = time.perf_counter()
@@ -367,7 +375,9 @@ def train(
     if datasets is None:
         datasets = make_datasets(recipe, render_device=device if t.num_workers == 0 else "cpu")
         if recipe.data.cache:
-            datasets = tuple(_cache(ds, what, t, progress and main, console) for ds, what in zip(datasets, ("training", "validation")))
+            datasets = tuple(
+                _cache(ds, what, t, progress and main, console, device) for ds, what in zip(datasets, ("training", "validation"))
+            )
             loader_workers = 0  # in memory: indexing is cheaper than shipping batches from workers
     train_ds, val_ds = datasets
     if len(train_ds) == 0:
@@ -512,7 +522,7 @@ def lr_at(step: int, total: int, t) -> float:
     return t.lr
 
 
-def _cache(ds, what: str, t, show: bool, console):
+def _cache(ds, what: str, t, show: bool, console, device: torch.device):
     from fviz.train.data import CachedPairs
 
     if ds is None or len(ds) == 0:
@@ -524,9 +534,14 @@ def _cache(ds, what: str, t, show: bool, console):
         with Progress(console=console, transient=True) as bar:
             task = bar.add_task(f"caching {len(ds)} {what} pairs", total=len(ds))
             cached = CachedPairs(ds, max(t.batch_size, 32), t.num_workers, lambda done, n: bar.update(task, completed=done))
-        bar.console.print(f"cached {len(ds)} {what} pairs in {time.perf_counter() - t0:.0f} s")
-        return cached
-    return CachedPairs(ds, max(t.batch_size, 32), t.num_workers)
+        bar.console.print(f"cached {len(ds)} {what} pairs ({cached.nbytes / 1e9:.2f} GB) in {time.perf_counter() - t0:.0f} s")
+    else:
+        cached = CachedPairs(ds, max(t.batch_size, 32), t.num_workers)
+    if device.type == "cuda":  # keep it on the GPU when it takes at most a quarter of the free memory
+        free, _ = torch.cuda.mem_get_info(device)
+        if cached.nbytes < free / 4:
+            cached.to(device)
+    return cached
 
 
 def _barrier(world: int) -> None:
@@ -561,7 +576,14 @@ class _Bar:
     """A rich progress bar (steps, loss, time left); messages printed above it."""
 
     def __init__(self, total: int, start: int, name: str, console=None):
-        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+        from rich.progress import (
+            BarColumn,
+            MofNCompleteColumn,
+            Progress,
+            TextColumn,
+            TimeElapsedColumn,
+            TimeRemainingColumn,
+        )
 
         self.progress = Progress(
             TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), TextColumn("loss {task.fields[loss]}"),

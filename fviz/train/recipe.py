@@ -135,7 +135,7 @@ class Recipe:
                 "description": self.description, "path": self.path}
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any], origin: str = "recipe") -> "Recipe":
+    def from_dict(cls, d: dict[str, Any], origin: str = "recipe") -> Recipe:
         d = dict(d)
         path = d.pop("path", "")
         _check_layer(d, origin, allow_variants=False)
