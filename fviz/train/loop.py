@@ -39,7 +39,10 @@ id (open both files together to see one curve).  A fresh run refuses an ``out_di
 holds ``last.pt``.
 
 A non-finite loss stops training with :class:`TrainingDiverged` (an FvizError) naming the step;
-``last.pt`` is then the last good checkpoint (weights are never saved after a NaN step).
+``last.pt`` is then the last good checkpoint.  Losses stay on the device and are brought to the host
+every ``log_every`` steps and before every validation and checkpoint (one sync, so that on a GPU the
+next batch renders while the current step runs); that is where a NaN is found, and no weights are
+saved between a NaN step and its discovery.
 
 Device: ``train.device = "auto"`` picks CUDA when available, else the CPU.  On CUDA ``amp = "auto"``
 uses bf16 autocast where supported, else fp16 with a gradient scaler; on the CPU training runs in
@@ -413,7 +416,40 @@ def train(
     last_checkpoint = [step if resume else -1]
     metrics: dict[str, float] = {k: v for k, v in history[-1].items() if k not in ("step", "epoch")} if history else {}
 
+    pending: list[torch.Tensor] = []  # losses of the steps since the last flush, still on the device
+    last_grad: list[Any] = [None]
+
+    def flush() -> None:
+        """Bring the pending losses to the host (one sync), stop on a non-finite one, log them."""
+        if not pending:
+            return
+        vals = torch.stack(pending).float()
+        if world > 1:
+            import torch.distributed as dist
+
+            dist.all_reduce(vals)  # a NaN on any rank makes the mean NaN on all: all stop together
+            vals = vals / world
+        host = vals.tolist()
+        first = step - len(host) + 1
+        pending.clear()
+        for i, value in enumerate(host):
+            if not math.isfinite(value):
+                where = (f"the last good checkpoint is {last_good['path']} (step {last_good['step']})"
+                         if last_good["path"] is not None else "no checkpoint had been written yet")
+                raise TrainingDiverged(
+                    f"training stopped: the loss became {value} at step {first + i} (epoch {epoch + 1}); {where}. "
+                    "Lower train.lr or check the data", first + i, last_good["path"],
+                )
+        losses.extend(host)
+        for i, value in enumerate(host):
+            if (first + i) % t.log_every == 0 or first + i == 1:
+                curves.log(first + i, {"train/loss": value})
+        grad = float(last_grad[0]) if last_grad[0] is not None else None
+        curves.log(step, {"train/grad_norm": grad, "train/lr": opt.param_groups[0]["lr"]})
+        bar.show(host[-1])
+
     def checkpoint() -> None:
+        flush()
         if main:
             state = make_checkpoint(
                 model, optimizer=opt, scaler=scaler, recipe=recipe.to_dict(), metrics={"last": metrics, "history": history},
@@ -427,6 +463,7 @@ def train(
 
     def run_validation() -> None:
         nonlocal metrics
+        flush()
         if main and val_loader is not None:
             metrics = validate(model, val_loader, recipe, device, amp_dtype)
             history.append({"step": step, "epoch": epoch, **metrics})
@@ -449,30 +486,21 @@ def train(
                 with torch.autocast(device.type, dtype=amp_dtype or torch.float32, enabled=amp_dtype is not None):
                     F_pred = net(img_a, img_b)
                 loss = f_loss(F_pred, F_t, norm, t.l1_weight, t.l2_weight, t.loss_frame, recipe.input_hw)
-                value = _global_mean(loss.detach(), world)
-                if not math.isfinite(value):
-                    where = (f"the last good checkpoint is {last_good['path']} (step {last_good['step']})"
-                             if last_good["path"] is not None else "no checkpoint had been written yet")
-                    raise TrainingDiverged(
-                        f"training stopped: the loss became {value} at step {step + 1} (epoch {epoch + 1}); {where}. "
-                        "Lower train.lr or check the data", step + 1, last_good["path"],
-                    )
+                pending.append(loss.detach())  # checked at the next flush (no host sync per step)
                 for group in opt.param_groups:
                     group["lr"] = lr_at(step, total, t)
                 opt.zero_grad(set_to_none=True)
                 scaler.scale(loss).backward()
-                grad_norm = None
                 if t.grad_clip > 0:
                     scaler.unscale_(opt)
-                    grad_norm = float(torch.nn.utils.clip_grad_norm_(model.parameters(), t.grad_clip))
+                    last_grad[0] = torch.nn.utils.clip_grad_norm_(model.parameters(), t.grad_clip)
                 scaler.step(opt)
                 scaler.update()
                 step += 1
                 batch_in_epoch += 1
-                losses.append(value)
+                bar.advance()
                 if step % t.log_every == 0 or step == 1:
-                    curves.log(step, {"train/loss": value, "train/grad_norm": grad_norm, "train/lr": opt.param_groups[0]["lr"]})
-                bar.advance(value)
+                    flush()
                 if t.val_every and step % t.val_every == 0:
                     run_validation()
                     last_validated = step
@@ -482,6 +510,7 @@ def train(
                 if step >= total:
                     done = True
                     break
+            flush()
             if batch_in_epoch >= len(batches):  # the epoch is complete
                 epoch += 1
                 batch_in_epoch = 0
@@ -490,6 +519,7 @@ def train(
                     last_validated = step
                 checkpoint()
                 done = done or epoch >= t.epochs
+        flush()
         if last_validated != step:
             run_validation()
         if last_checkpoint[0] != step:
@@ -551,18 +581,11 @@ def _barrier(world: int) -> None:
         dist.barrier()
 
 
-def _global_mean(x: torch.Tensor, world: int) -> float:
-    if world > 1:
-        import torch.distributed as dist
-
-        x = x.clone()
-        dist.all_reduce(x)
-        x = x / world
-    return float(x)
-
-
 class _NoBar:
-    def advance(self, loss: float) -> None:
+    def advance(self) -> None:
+        pass
+
+    def show(self, loss: float) -> None:
         pass
 
     def print(self, text: str) -> None:
@@ -592,8 +615,11 @@ class _Bar:
         self.task = self.progress.add_task(name, total=total, completed=start, loss="-")
         self.progress.start()
 
-    def advance(self, loss: float) -> None:
-        self.progress.update(self.task, advance=1, loss=f"{loss:.4g}")
+    def advance(self) -> None:
+        self.progress.update(self.task, advance=1)
+
+    def show(self, loss: float) -> None:
+        self.progress.update(self.task, loss=f"{loss:.4g}")
 
     def print(self, text: str) -> None:
         self.progress.console.print(text)
