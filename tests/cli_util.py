@@ -1,5 +1,6 @@
 """Run the real ``fviz`` command line in a subprocess, as a user would."""
 
+import csv
 import subprocess
 import sys
 
@@ -15,3 +16,8 @@ def assert_one_line_error(proc, code, *fragments):
     assert len(err) == 1 and err[0].startswith("error: "), proc.stderr
     for f in fragments:
         assert f in err[0], err[0]
+
+
+def read_csv(path):
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))

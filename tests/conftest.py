@@ -38,3 +38,14 @@ def raw_drive(kitti_root):
     from fviz.data.kitti import open_dataset
 
     return open_dataset(kitti_root, drive="2011_09_26_drive_0001")
+
+
+@pytest.fixture(scope="module")
+def torch_one_thread():
+    """One torch thread: on a shared CPU, OpenMP threads waiting on each other make tiny models 10-40x slower."""
+    import torch
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)

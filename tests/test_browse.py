@@ -7,8 +7,8 @@ import json
 import math
 
 import pytest
-
 from browser import WebServer, inspect_recording, listening, run_fviz
+
 from fviz.record.writer import SCALAR_METRICS
 
 pytestmark = pytest.mark.kitti

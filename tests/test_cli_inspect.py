@@ -6,9 +6,9 @@ import sys
 import cv2
 import numpy as np
 import pytest
+from cli_util import assert_one_line_error, run_fviz
 from rerun.chunk import RrdReader
 
-from cli_util import assert_one_line_error, run_fviz
 from fviz.geometry import epipoles, symmetric_epipolar_distance
 from fviz.record import layout as L
 

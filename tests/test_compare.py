@@ -4,9 +4,9 @@ import csv
 import math
 
 import pytest
+from cli_util import assert_one_line_error, run_fviz
 from typer.testing import CliRunner
 
-from cli_util import assert_one_line_error, run_fviz
 from fviz.cli import app
 from fviz.compare import Side, compare
 

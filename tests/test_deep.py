@@ -5,8 +5,8 @@ import json
 from pathlib import Path
 
 import numpy as np
-
 from cli_util import assert_one_line_error, run_fviz
+
 from fviz.estimators.deep import BUNDLED
 
 ASSETS = Path(__file__).resolve().parents[1] / "assets"

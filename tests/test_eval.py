@@ -1,10 +1,8 @@
 """``fviz eval`` / ``fviz merge`` on the real samples: reports agree, features are reused, resume and
 Ctrl-C, shards, failures recorded, bad input."""
 
-import csv
 import json
 import math
-import os
 import signal
 import subprocess
 import sys
@@ -12,10 +10,10 @@ import time
 
 import pyarrow.parquet as pq
 import pytest
+from cli_util import assert_one_line_error, read_csv, run_fviz
 from rerun.chunk import RrdReader
 from typer.testing import CliRunner
 
-from cli_util import assert_one_line_error, run_fviz
 from fviz.cli import app
 from fviz.record import layout as L
 
@@ -39,9 +37,6 @@ def eval_ok(*args):
     return r
 
 
-def read_csv(path):
-    with open(path, newline="") as f:
-        return list(csv.DictReader(f))
 
 
 def as_float(v):
@@ -235,7 +230,7 @@ def test_ctrl_c_leaves_valid_partial_reports_that_resume_completes(kitti_root, t
     ents = rrd_rows(out / "eval.rrd")
     assert len(ents[L.PAIR_INFO]) == done
 
-    r = eval_ok("--out-dir", out, "--resume", "--workers", workers, "--no-progress")
+    eval_ok("--out-dir", out, "--resume", "--workers", workers, "--no-progress")
     final = jsonl(out / "results.jsonl")
     assert final[:done] == partial  # finished pairs untouched
     assert len(final) == 29 and len({r["key"] for r in final}) == 29

@@ -5,7 +5,7 @@ import pytest
 
 from fviz.estimators import get_estimator
 from fviz.evaluate import GT_NAME, evaluate_pair
-from fviz.geometry import algebraic, normalize
+from fviz.geometry import normalize
 from fviz.geometry import symmetric_epipolar_distance as sed
 
 

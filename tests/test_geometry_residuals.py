@@ -1,10 +1,14 @@
 import cv2
 import numpy as np
-import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from fviz.geometry import algebraic, fundamental_from_motion, sampson_distance, symmetric_epipolar_distance
+from fviz.geometry import (
+    algebraic,
+    fundamental_from_motion,
+    sampson_distance,
+    symmetric_epipolar_distance,
+)
 
 K = np.array([[718.856, 0, 607.1928], [0, 718.856, 185.2157], [0, 0, 1.0]])
 R = cv2.Rodrigues(np.array([0.01, 0.04, -0.01]))[0]

@@ -10,7 +10,14 @@ from fviz.data.kitti import open_dataset
 from fviz.errors import FvizError
 from fviz.estimators.classical import RobustConfig, magsac
 from fviz.estimators.features import FeatureConfig, detect, match
-from fviz.geometry import NormalizationError, describe_epipole, epipoles, f_distance, fundamental_from_motion, normalize
+from fviz.geometry import (
+    NormalizationError,
+    describe_epipole,
+    epipoles,
+    f_distance,
+    fundamental_from_motion,
+    normalize,
+)
 from fviz.geometry import symmetric_epipolar_distance as sed
 
 

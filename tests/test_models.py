@@ -28,14 +28,7 @@ from fviz.models.heads import RecHead, euler_to_rotation, fundamental_from_param
 from fviz.models.normalization import ETR_TRAIN_EPS, normalize_f
 from fviz.models.predict import f_to_full, f_to_input, scale_matrix, to_model_input
 
-
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    """One torch thread: on a shared CPU, OpenMP threads waiting on each other make tiny models 10-40x slower."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("torch_one_thread")
 
 
 SMALL = dict(input_hw=(24, 64), width=8, hidden=16, pool_grid=(2, 3), ucn_channels=(4, 8, 8), dropout=0.0)

@@ -4,9 +4,10 @@ triage-like one (``rank`` and ``pair`` timelines, a failing estimator) written w
 from __future__ import annotations
 
 import math
-import pytest
 
+import pytest
 from browser import inspect_recording
+
 from fviz.errors import FvizError
 from fviz.record import layout as L
 from fviz.record import reader as R
@@ -72,8 +73,8 @@ def test_helpers(inspected):
 
 def test_triage_like_recording(odometry, tmp_path):
     """Any timeline: items on ``rank`` (preferred), the ``pair`` index kept in ``times``; failures as NaN."""
-    from fviz.evaluate import evaluate_pair
     from fviz.estimators import get_estimator
+    from fviz.evaluate import evaluate_pair
     from fviz.record.writer import RecordingWriter, log_pair, log_static
 
     def broken(pair, x_a, x_b):

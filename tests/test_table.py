@@ -4,7 +4,6 @@ import csv
 
 import numpy as np
 import pytest
-
 from cli_util import assert_one_line_error, run_fviz
 
 

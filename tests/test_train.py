@@ -26,13 +26,7 @@ from fviz.train.recipe import Recipe, load_recipe
 PROJECT = Path(__file__).resolve().parents[1]
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    """One torch thread: on a shared CPU, OpenMP threads waiting on each other make tiny models 10-40x slower."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("torch_one_thread")
 
 
 TINY_MODEL = {"input_size": [32, 96], "width": 8, "hidden": 16, "pool_grid": [2, 4], "dropout": 0.0}

@@ -1,16 +1,15 @@
 """``fviz triage`` on the real samples: ranking, tags against independent computations, the constant-F
 baseline, the rank timeline of triage.rrd, reuse of an eval run."""
 
-import csv
 import json
 import math
 
 import numpy as np
 import pytest
+from cli_util import assert_one_line_error, read_csv, run_fviz
 from rerun.chunk import RrdReader
 from typer.testing import CliRunner
 
-from cli_util import assert_one_line_error, run_fviz
 from fviz.cli import app
 from fviz.data.pair import PairId
 from fviz.geometry import describe_epipole, epipoles, f_distance
@@ -28,9 +27,6 @@ def invoke(*args):
     return r
 
 
-def read_csv(path):
-    with open(path, newline="") as f:
-        return list(csv.DictReader(f))
 
 
 def jsonl(path):
@@ -70,7 +66,7 @@ def test_worst_pair_has_the_largest_metric(temporal):
     md = (out / "triage.md").read_text()
     assert f"| 0 | `{worst['name']}` |" in md
     frame = int(worst["frame_a"])
-    assert f"fviz inspect pair --kitti-root" in md and f"--frame {frame} --pair temporal --step 1 --cams 0,0" in md
+    assert "fviz inspect pair --kitti-root" in md and f"--frame {frame} --pair temporal --step 1 --cams 0,0" in md
     assert md.count("fviz inspect pair") == 5
 
 

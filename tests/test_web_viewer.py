@@ -13,8 +13,7 @@ import os
 
 import numpy as np
 import pytest
-
-from browser import Chromium, WebServer, decode_png, inspect_recording, require_chromium
+from browser import Chromium, WebServer, inspect_recording, require_chromium
 
 pytestmark = [pytest.mark.browser, pytest.mark.kitti, pytest.mark.slow]
 
