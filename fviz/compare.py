@@ -14,6 +14,7 @@ import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from fviz.atomic import write_text
 from fviz.errors import FvizError
 from fviz.triage import HIGHER_IS_BETTER
 
@@ -143,5 +144,4 @@ def _v(c: Comparison, name: str, i: int) -> str:
 def write_compare(c: Comparison, out_dir: Path) -> Path:
     path = Path(out_dir) / COMPARE_FILE
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(compare_markdown(c))
-    return path
+    return write_text(path, compare_markdown(c))

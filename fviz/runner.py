@@ -916,11 +916,11 @@ def _light_blueprint():
 
 def _pair_text(rec: dict[str, Any], result: PairResult) -> str:
     """The per-pair Markdown: inspect's summary, or the reason a pair failed as a whole."""
-    from fviz.record.writer import _markdown
+    from fviz.record.writer import pair_markdown
 
     if rec.get("result") is None:
         return f"# {rec['key']}\n\n**failed**: {rec['error']}\n"
-    text = _markdown(result)
+    text = pair_markdown(result)
     return text + (f"\n\n**pair failed**: {rec['error']}\n" if rec["error"] else "")
 
 

@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from fviz.atomic import write_text
 from fviz.errors import FvizError
 from fviz.evaluate import EVAL_THRESHOLD_PX, GT_NAME
 
@@ -330,8 +331,6 @@ def run_triage(config, out_dir: str | Path, by: str = "magsac", metric: str = "s
     wanted = {r.index for r in shown}
     records = {rec["index"]: rec for rec in store.records() if rec["index"] in wanted}
     source = config.selection.source()
-    md, tmp = out_dir / TRIAGE_FILE, out_dir / f".{TRIAGE_FILE}.tmp"
-    tmp.write_text(triage_markdown(config, ranked, top, by, metric, source))
-    tmp.replace(md)
+    md = write_text(out_dir / TRIAGE_FILE, triage_markdown(config, ranked, top, by, metric, source))
     rrd = write_triage_recording(out_dir / TRIAGE_RRD, config, out_dir, shown, records)
     return TriageOutcome(ranked, md, rrd, outcome)

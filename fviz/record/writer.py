@@ -100,7 +100,7 @@ def _log_epipoles(rec, path: str, named: list[tuple[str, np.ndarray]], size: tup
         rec.log(path + "/outside", rr.Arrows2D(origins=origins, vectors=vectors, colors=(0, 200, 255)))
 
 
-def _markdown(result: PairResult) -> str:
+def pair_markdown(result: PairResult) -> str:
     p = result.pair
     cols = ("epi_abs", "epi_sqr", "sed_median", "sampson_median", "inlier_ratio", "f_dist", "epipole_err_deg")
     lines = [
@@ -140,7 +140,7 @@ def log_pair(rec, index: int, pair: Pair, result: PairResult, n_lines: int = 30)
     for v, img in (("a", pair.image_a), ("b", pair.image_b)):
         rec.log(L.image(v), rr.EncodedImage(contents=encode_jpeg(img), media_type="image/jpeg"))
     rec.log(L.PAIR_INFO, rr.TextDocument(pair.id.name))
-    rec.log(L.SUMMARY, rr.TextDocument(_markdown(result), media_type="text/markdown"))
+    rec.log(L.SUMMARY, rr.TextDocument(pair_markdown(result), media_type="text/markdown"))
     m = result.matches
     sub = line_subset(result, n_lines)
     match_ids = np.arange(len(m), dtype=np.uint16 if len(m) < 2**16 else np.uint32)
