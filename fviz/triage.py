@@ -204,7 +204,7 @@ def inspect_command(config, source, ref: dict[str, Any]) -> str:
     """The ``fviz inspect pair`` command that reopens a pair with the run's options."""
     from fviz.estimators.options import EstimatorOptions
     from fviz.data.pair import PairId
-    from fviz.runner import CONSTANT
+    from fviz.run import CONSTANT
 
     pid = PairId(**{k: v for k, v in ref.items() if k != "name"})
     args = ["fviz", "inspect", "pair", *source.inspect_args(pid)]
@@ -231,7 +231,7 @@ def _tag_text(r: Ranked) -> str:
 
 
 def triage_markdown(config, ranked: list[Ranked], top: int, by: str, metric: str, source) -> str:
-    from fviz.runner import CONSTANT
+    from fviz.run import CONSTANT
 
     counts = {t: sum(any(x == t for x, _ in r.tags) for r in ranked) for t in TAGS}
     worst = "smallest" if metric in HIGHER_IS_BETTER else "largest"
@@ -280,7 +280,7 @@ def write_triage_recording(path: Path, config, out_dir: Path, shown: list[Ranked
 
     from fviz.data.pair import PairId
     from fviz.record.writer import RecordingWriter, log_pair, log_static
-    from fviz.runner import PairEvaluator, log_summary_pair, result_from_record
+    from fviz.run import PairEvaluator, log_summary_pair, result_from_record
 
     evaluator = PairEvaluator(config, out_dir)
     size = next(((tuple(rec["result"]["pair"]["size_a"]), tuple(rec["result"]["pair"]["size_b"]))
@@ -312,7 +312,7 @@ class TriageOutcome:
 def run_triage(config, out_dir: str | Path, by: str = "magsac", metric: str = "sed_median", top: int = 20,
                workers: int | None = None, progress: bool = True) -> TriageOutcome:
     """Evaluate what ``out_dir`` lacks (eval with resume semantics), rank, tag and write the reports."""
-    from fviz.runner import CONSTANT, ResultStore, read_config, run_eval
+    from fviz.run import CONSTANT, ResultStore, read_config, run_eval
 
     if top < 1:
         raise FvizError(f"--top {top}: must be >= 1")

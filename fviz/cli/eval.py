@@ -2,7 +2,7 @@
 
 Selection: ``--kitti-root`` with ``--sequence`` / ``--drive``, ``--pair`` and ``--step`` (repeatable or
 comma lists), ``--cams``, ``--frames START:END`` (END exclusive, either side may be left out); or
-``--synthetic --seeds A:B``. Outputs in ``--out-dir`` (see :mod:`fviz.runner`): results.jsonl (the
+``--synthetic --seeds A:B``. Outputs in ``--out-dir`` (see :mod:`fviz.run`): results.jsonl (the
 source of truth, appended per pair), metrics.csv / .parquet, summary.md, eval.rrd. eval.rrd holds
 metric series, summaries and errors per pair; ``--full`` adds every pair's images, keypoints,
 epipolar lines and plots (as ``inspect``), which for a whole KITTI sequence means gigabytes.
@@ -93,7 +93,7 @@ class RunArgs:
         from dataclasses import replace
 
         from fviz.estimators.options import EstimatorOptions
-        from fviz.runner import RunConfig, parse_shard, read_config
+        from fviz.run import RunConfig, parse_shard, read_config
 
         existing = None if self.selects else read_config(self.out_dir)
         if existing is not None:
@@ -107,7 +107,7 @@ class RunArgs:
                          parse_shard(self.shard) if self.shard else None)
 
     def selection(self):
-        from fviz.runner import Selection
+        from fviz.run import Selection
 
         root = None
         if not self.synthetic:
@@ -188,7 +188,7 @@ def print_outcome(outcome, what: str = "eval") -> None:
 
 def _default_estimators() -> tuple[str, ...]:
     from fviz.estimators.registry import DEFAULT_ESTIMATORS
-    from fviz.runner import CONSTANT
+    from fviz.run import CONSTANT
 
     return (*DEFAULT_ESTIMATORS, CONSTANT)
 
@@ -200,7 +200,7 @@ def eval_(args: RunArgs, resume: Resume = False) -> None:
 
     Without selection flags, --resume continues the run in --out-dir as it was configured. Ctrl-C keeps the reports of the finished pairs (exit 130).
     """
-    from fviz.runner import run_eval
+    from fviz.run import run_eval
 
     config = args.config(_default_estimators())
     outcome = run_eval(config, args.out_dir, args.workers, resume, args.progress)
@@ -212,7 +212,7 @@ def merge(
     out_dir: Annotated[Path, typer.Option("--out-dir", help="New run folder for the merged results.")],
 ) -> None:
     """Merge the run folders of `fviz eval --shard i/n` jobs into one run with all reports."""
-    from fviz.runner import merge_runs
+    from fviz.run import merge_runs
 
     print_outcome(merge_runs(dirs, out_dir), "merge")
 

@@ -1,0 +1,33 @@
+"""Run estimators over every pair of a selection (what ``fviz eval`` and ``fviz triage`` do).
+
+A run lives in one ``--out-dir``::
+
+    run.json         the run's configuration (selection, estimator options, constant-F baseline)
+    results.jsonl    one JSON record per finished pair, appended and flushed as pairs finish: the
+                     source of truth (``--resume`` skips the pairs it holds; a later record of a pair
+                     supersedes an earlier one; a line cut by a crash is ignored)
+    metrics.csv      PairResult.rows() of every pair: one row per pair x estimator, ``gt`` included
+    metrics.parquet  the same rows
+    summary.md       per-estimator statistics and the paper-style table
+    eval.rrd         every pair on the ``pair`` timeline: pair/info, summary, errors, metric series
+    pairs/NNNNNN.npz with ``--full`` only: matches, inlier masks and residuals, so that eval.rrd can
+                     carry each pair's full inspect payload (images re-read from the source)
+
+The four reports are regenerated from results.jsonl at the end of every run, an interrupted one
+included, so they are always complete up to the last finished pair.
+
+Speed: pairs are sorted frame-major and split into contiguous chunks, one per worker process; each
+worker keeps a :class:`FeatureCache`, so a frame shared by neighbouring pairs is detected once
+(measured by the ``detections`` field of each record). Memory: a worker loads one pair at a time;
+the main process keeps only file offsets of results.jsonl and per-metric floats for the summary.
+"""
+
+from fviz.run.config import CONSTANT, RunConfig, Selection, parse_shard
+from fviz.run.execute import PairEvaluator, run_eval
+from fviz.run.reports import log_summary_pair, merge_runs, write_reports
+from fviz.run.store import ResultStore, read_config, result_from_record
+
+__all__ = [
+    "CONSTANT", "PairEvaluator", "ResultStore", "RunConfig", "Selection", "log_summary_pair", "merge_runs",
+    "parse_shard", "read_config", "result_from_record", "run_eval", "write_reports",
+]

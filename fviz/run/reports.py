@@ -1,0 +1,288 @@
+"""Reports regenerated from results.jsonl: metrics.csv / .parquet, summary.md, eval.rrd; and merging
+the results of several runs (shards) into one."""
+
+from __future__ import annotations
+
+import csv
+import math
+import os
+from array import array
+from dataclasses import replace
+from pathlib import Path
+from typing import Any, Iterable, Iterator
+
+import numpy as np
+
+from fviz.atomic import tmp_path, write_text
+from fviz.data.pair import PairId
+from fviz.errors import FvizError
+from fviz.evaluate import GT_NAME, PairResult
+from fviz.run.config import (
+    CONSTANT, CSV_FILE, INT_COLUMNS, PAPER_COLUMNS, PAPER_NORMS, PARQUET_FILE, PERCENTILES, RESULTS_FILE, RRD_FILE,
+    RUN_FILE, SUMMARY_FILE, SUMMARY_METRICS, TEXT_COLUMNS, RunConfig,
+)
+from fviz.run.store import (
+    ResultStore, RunOutcome, load_payload, payload_path, read_config, read_records, record_rows, result_from_record,
+    write_config,
+)
+
+
+
+def _columns(rows_iter: Iterable[dict[str, Any]]) -> list[str]:
+    cols: dict[str, None] = {}
+    for row in rows_iter:
+        cols.update(dict.fromkeys(row))
+    return list(cols)
+
+
+def iter_rows(out_dir: Path, config: RunConfig) -> Iterator[tuple[dict[str, Any], PairResult, list[dict[str, Any]]]]:
+    """(record, its PairResult, its CSV rows) of each pair, by index."""
+    for rec in ResultStore(out_dir).records():
+        result = result_from_record(rec, config)
+        yield rec, result, record_rows(rec, result)
+
+
+def _arrow_schema(columns: list[str]):
+    import pyarrow as pa
+
+    return pa.schema([(c, pa.string() if c in TEXT_COLUMNS else pa.int64() if c in INT_COLUMNS else pa.float64())
+                      for c in columns])
+
+
+class _Stats:
+    """Finite values per (estimator, metric) for the summary; failures counted per estimator."""
+
+    def __init__(self, keys: Iterable[str]):
+        self.keys = frozenset(keys)
+        self.values: dict[tuple[str, str], array] = {}
+        self.failed: dict[str, int] = {}
+        self.pairs = self.pair_errors = 0
+        self.order: dict[str, None] = {}
+
+    def add(self, rec: dict[str, Any], rows: list[dict[str, Any]]) -> None:
+        self.pairs += 1
+        self.pair_errors += rec["error"] is not None
+        for row in rows:
+            est = row["estimator"]
+            self.order[est] = None
+            if row["error"] or rec["error"]:
+                self.failed[est] = self.failed.get(est, 0) + 1
+            for key in self.keys:
+                v = row.get(key)
+                if isinstance(v, float) and math.isfinite(v):
+                    self.values.setdefault((est, key), array("d")).append(v)
+
+    def get(self, est: str, key: str) -> np.ndarray:
+        return np.asarray(self.values.get((est, key), []), dtype=np.float64)
+
+
+def write_reports(out_dir: Path, config: RunConfig) -> dict[str, Path]:
+    """metrics.csv, metrics.parquet, summary.md and eval.rrd from results.jsonl (each written atomically)."""
+    out_dir = Path(out_dir)
+    columns = _columns(row for _, _, rows in iter_rows(out_dir, config) for row in rows)
+    stats = _write_tables(out_dir, config, columns)
+    paths = {"csv": out_dir / CSV_FILE, "parquet": out_dir / PARQUET_FILE}
+    paths["summary"] = write_summary(out_dir / SUMMARY_FILE, config, stats)
+    paths["rrd"] = write_recording(out_dir / RRD_FILE, out_dir, config)
+    return paths
+
+
+def _write_tables(out_dir: Path, config: RunConfig, columns: list[str], batch: int = 2000) -> _Stats:
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    csv_path, pq_path = out_dir / CSV_FILE, out_dir / PARQUET_FILE
+    csv_tmp, pq_tmp = tmp_path(csv_path), tmp_path(pq_path)
+    schema, stats, pending = _arrow_schema(columns), _Stats(SUMMARY_METRICS + PAPER_COLUMNS), []
+    with open(csv_tmp, "w", newline="") as f, pq.ParquetWriter(pq_tmp, schema) as pw:
+        writer = csv.DictWriter(f, columns, restval="")
+        writer.writeheader()
+
+        def flush():
+            pw.write_table(pa.Table.from_pylist(pending, schema=schema))
+            pending.clear()
+
+        for rec, _, rows in iter_rows(out_dir, config):
+            stats.add(rec, rows)
+            writer.writerows(rows)
+            pending.extend(_typed(row, columns) for row in rows)
+            if len(pending) >= batch:
+                flush()
+        flush()
+    os.replace(csv_tmp, csv_path)
+    os.replace(pq_tmp, pq_path)
+    return stats
+
+
+def _typed(row: dict[str, Any], columns: list[str]) -> dict[str, Any]:
+    out = {}
+    for c in columns:
+        v = row.get(c)
+        if c in TEXT_COLUMNS:
+            out[c] = None if v is None else str(v)
+        elif c in INT_COLUMNS:
+            out[c] = None if v is None else int(v)
+        else:
+            out[c] = None if v is None or v == "" else float(v)
+    return out
+
+
+def _fmt(v: float) -> str:
+    return "n/a" if not math.isfinite(v) else f"{v:.4g}"
+
+
+def _display(est: str) -> str:
+    return "ground truth" if est == GT_NAME else est
+
+
+def summary_markdown(config: RunConfig, stats: _Stats) -> str:
+    """Per-estimator statistics of the key metrics and the paper-style EPI table."""
+    ests = list(stats.order) or config.series_names()
+    o = config.options
+    lines = [
+        "# fviz eval",
+        "",
+        f"{config.selection.describe()}" + (f", shard {config.shard[0]}/{config.shard[1]}" if config.shard else "") + ".",
+        f"{stats.pairs} pairs ({stats.pair_errors} failed as a whole); features {o.features} (max {o.max_keypoints}, ratio {o.ratio}"
+        f"{', mutual' if o.mutual else ''}); robust threshold {o.threshold} px; evaluation matches: GT symmetric epipolar "
+        f"distance < {config.eval_threshold} px.",
+        f"EPI-ABS / EPI-SQR (`epi_abs`, `epi_sqr`) are per-pair **means** over the evaluation matches, on F normalized by "
+        f"**{config.norm.upper()}**; distances in px. Statistics below are over the pairs where the estimator succeeded.",
+        "",
+        "## Per estimator",
+    ]
+    for key in SUMMARY_METRICS:
+        lines += ["", f"### {key}", "", "| estimator | ok | failed | mean | median | " + " | ".join(f"p{p}" for p in PERCENTILES) + " |",
+                  "|---|---|---|---|---|" + "---|" * len(PERCENTILES)]
+        for est in ests:
+            v = stats.get(est, key)
+            vals = [v.mean(), np.median(v), *(np.percentile(v, p) for p in PERCENTILES)] if len(v) else [math.nan] * (2 + len(PERCENTILES))
+            lines.append(f"| {_display(est)} | {stats.pairs - stats.failed.get(est, 0)} | {stats.failed.get(est, 0)} | "
+                         + " | ".join(_fmt(x) for x in vals) + " |")
+    lines += [
+        "",
+        "## Paper-style table",
+        "",
+        "Means over pairs of the per-pair EPI-ABS and EPI-SQR (themselves means over the evaluation matches), "
+        "F normalized by the norm named in each column (FBN: Frobenius norm, ABS: largest absolute entry, "
+        "ETR: F33; n/a where undefined, e.g. ETR on rectified stereo pairs where F33 = 0).",
+        "",
+        "| estimator | " + " | ".join(f"EPI-ABS {n.upper()} | EPI-SQR {n.upper()}" for n in PAPER_NORMS) + " |",
+        "|---|" + "---|---|" * len(PAPER_NORMS),
+    ]
+    for est in ests:
+        vals = [stats.get(est, c) for c in PAPER_COLUMNS]
+        lines.append(f"| {_display(est)} | " + " | ".join(_fmt(v.mean()) if len(v) else "n/a" for v in vals) + " |")
+    if CONSTANT in ests:
+        lines += ["", f"`{CONSTANT}`: one F for every pair, the mean ground-truth F of the selection (FBN-normalized, "
+                  "sign-aligned, averaged); a low error there reveals dataset bias, not estimation skill."]
+    return "\n".join(lines) + "\n"
+
+
+def write_summary(path: Path, config: RunConfig, stats: _Stats) -> Path:
+    return write_text(path, summary_markdown(config, stats))
+
+
+def _light_blueprint():
+    import rerun.blueprint as rrb
+
+    from fviz.record import layout as L
+    from fviz.record.writer import SCALAR_METRICS
+
+    return rrb.Blueprint(rrb.Horizontal(
+        rrb.Grid(*[rrb.TimeSeriesView(origin=L.metric(k), name=k) for k in SCALAR_METRICS]),
+        rrb.TextDocumentView(origin=L.SUMMARY, name="summary"),
+        column_shares=[3, 2],
+    ), collapse_panels=True)
+
+
+def _pair_text(rec: dict[str, Any], result: PairResult) -> str:
+    """The per-pair Markdown: inspect's summary, or the reason a pair failed as a whole."""
+    from fviz.record.writer import pair_markdown
+
+    if rec.get("result") is None:
+        return f"# {rec['key']}\n\n**failed**: {rec['error']}\n"
+    text = pair_markdown(result)
+    return text + (f"\n\n**pair failed**: {rec['error']}\n" if rec["error"] else "")
+
+
+def log_summary_pair(rec_stream, index: int, rec: dict[str, Any], result: PairResult) -> None:
+    """The light per-pair payload at ``pair`` = index: name, summary, errors and metric values."""
+    import rerun as rr
+
+    from fviz.record import layout as L
+    from fviz.record.writer import log_metrics
+
+    rec_stream.set_time(L.TIMELINE, sequence=index)
+    rec_stream.log(L.PAIR_INFO, rr.TextDocument(result.pair.get("name", rec["key"])))
+    rec_stream.log(L.SUMMARY, rr.TextDocument(_pair_text(rec, result), media_type="text/markdown"))
+    for r in result.estimators:
+        if r.error:
+            rec_stream.log(L.error(r.name), rr.TextLog(f"{r.name} failed: {r.error}", level="ERROR"))
+    log_metrics(rec_stream, result)
+
+
+def write_recording(path: Path, out_dir: Path, config: RunConfig) -> Path:
+    """eval.rrd: every pair on the ``pair`` timeline; with ``--full`` (and a saved payload) the whole
+    inspect payload, images re-read from the source."""
+    from fviz.record import layout as L
+    from fviz.record.writer import RecordingWriter, log_pair, log_static
+
+    source = config.selection.source() if config.full else None
+    blueprint = _light_blueprint()
+    if config.full:
+        first = next((r["result"]["pair"] for r in ResultStore(out_dir).records() if r.get("result")), None)
+        if first is not None:
+            blueprint = L.blueprint(tuple(first["size_a"]), tuple(first["size_b"]))
+    with RecordingWriter(path, "fviz-eval", blueprint) as w:
+        log_static(w.rec, config.series_names())
+        for rec, result, _ in iter_rows(out_dir, config):
+            payload = payload_path(out_dir, rec["index"])
+            if source is not None and rec.get("result") is not None and payload.is_file():
+                pair = source.load(PairId(**{k: v for k, v in rec["ref"].items() if k != "name"}))
+                log_pair(w.rec, rec["index"], pair, load_payload(payload, result))
+            else:
+                log_summary_pair(w.rec, rec["index"], rec, result)
+    return path
+
+
+# ------------------------------------------------------------------------------ merge
+
+
+def merge_runs(dirs: list[Path], out_dir: Path) -> RunOutcome:
+    """Merge the results of shards (or any runs of one configuration) into ``out_dir``."""
+    import shutil
+
+    configs = []
+    for d in dirs:
+        c = read_config(d)
+        if c is None or not (Path(d) / RESULTS_FILE).is_file():
+            raise FvizError(f"merge: {d} holds no fviz run ({RUN_FILE} and {RESULTS_FILE} expected)")
+        configs.append(c)
+    first = configs[0]
+    for d, c in zip(dirs, configs):
+        if c.comparable() != first.comparable() or c.estimator_names() != first.estimator_names():
+            raise FvizError(f"merge: {d} was run with other options than {dirs[0]}")
+    out_dir = Path(out_dir)
+    if (out_dir / RESULTS_FILE).exists():
+        raise FvizError(f"--out-dir {out_dir} already holds a run: choose an empty folder")
+    out_dir.mkdir(parents=True, exist_ok=True)
+    config = replace(first, shard=None)
+    latest: dict[str, tuple[Path, int, int]] = {}  # key -> (results file, offset, index); later dirs win
+    for d in dirs:
+        store = ResultStore(d)
+        latest.update({key: (store.path, off, index) for key, (off, index, _) in store.latest().items()})
+    store, failed = ResultStore(out_dir), 0
+    for rec in read_records(list(latest.values())):
+        store.append(rec)
+        failed += rec["error"] is not None
+        payload = payload_path(Path(latest[rec["key"]][0]).parent, rec["index"])
+        if payload.is_file():
+            payload_path(out_dir, rec["index"]).parent.mkdir(exist_ok=True)
+            shutil.copyfile(payload, payload_path(out_dir, rec["index"]))
+    store.close()
+    write_config(out_dir, config)
+    outcome = RunOutcome(total=len(config.pairs()), reused=len(latest), computed=0, interrupted=False,
+                         out_dir=out_dir, failed=failed)
+    outcome.paths = write_reports(out_dir, config)
+    return outcome

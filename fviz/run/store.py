@@ -1,0 +1,173 @@
+"""What a run keeps on disk: run.json, results.jsonl (append-only, the source of truth) and the
+optional per-pair payloads of ``--full``; records back to PairResult objects and CSV rows."""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterator
+
+import numpy as np
+
+from fviz.errors import FvizError
+from fviz.evaluate import EstimatorResult, PairResult
+from fviz.run.config import PAYLOAD_DIR, RESULTS_FILE, RUN_FILE, RunConfig
+
+
+
+def payload_path(out_dir: Path, index: int) -> Path:
+    return Path(out_dir) / PAYLOAD_DIR / f"{index:06d}.npz"
+
+
+def save_payload(path: Path, result: PairResult) -> None:
+    """The arrays log_pair needs beyond the JSON record (atomic: temporary name, then rename)."""
+    arrays = {"x_a": result.matches.x_a, "x_b": result.matches.x_b, "eval_mask": result.eval_mask}
+    for i, r in enumerate(result.estimators):
+        if r.inliers is not None:
+            arrays[f"inliers_{i}"], arrays[f"residuals_{i}"] = r.inliers, r.residuals_px
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.stem}.{os.getpid()}.npz")
+    np.savez(tmp, **arrays)
+    os.replace(tmp, path)
+
+
+def load_payload(path: Path, result: PairResult) -> PairResult:
+    """Fill matches, the evaluation mask, inliers and residuals of a result rebuilt from its record."""
+    from fviz.estimators.features import Matches
+
+    with np.load(path) as z:
+        n = len(z["x_a"])
+        result.matches = Matches(np.zeros((n, 2), int), z["x_a"], z["x_b"], np.zeros(n))
+        result.eval_mask = z["eval_mask"]
+        for i, r in enumerate(result.estimators):
+            if f"inliers_{i}" in z:
+                r.inliers, r.residuals_px = z[f"inliers_{i}"], z[f"residuals_{i}"]
+    return result
+
+
+# ------------------------------------------------------------------------------ records
+
+
+def _float(v) -> float:
+    return float("nan") if v is None else float(v)
+
+
+def result_from_record(rec: dict[str, Any], config: RunConfig) -> PairResult:
+    """The PairResult of a record (without matches): rebuilt from its JSON, or, for a pair that failed
+    before evaluation, one error entry per estimator so rows and metric series stay aligned."""
+    d = rec.get("result")
+    if d is None:
+        return PairResult(
+            pair=rec["ref"], norm=config.norm, eval_threshold_px=config.eval_threshold, F_gt=np.full((3, 3), np.nan),
+            n_keypoints=(0, 0), n_matches=0, n_eval=0, timings={},
+            estimators=[EstimatorResult(n, None, {}, 0.0, rec["error"]) for n in config.series_names()],
+        )
+    ests = [EstimatorResult(e["name"], None if e["F"] is None else np.array(e["F"]),
+                            {k: _float(v) for k, v in e["metrics"].items()}, e["seconds"], e["error"])
+            for e in d["estimators"]]
+    return PairResult(
+        pair=d["pair"], norm=d["norm"], eval_threshold_px=d["eval_threshold_px"], F_gt=np.array(d["F_gt"]),
+        n_keypoints=tuple(d["n_keypoints"]), n_matches=d["n_matches"], n_eval=d["n_eval"], timings=d["timings"],
+        estimators=ests, notes=d.get("notes", []),
+    )
+
+
+def record_rows(rec: dict[str, Any], result: PairResult) -> list[dict[str, Any]]:
+    """CSV rows of a record: PairResult.rows() with the pair's index first and its pair-level error."""
+    return [{"index": rec["index"], **row, "pair_error": rec["error"] or ""} for row in result.rows()]
+
+
+class ResultStore:
+    """results.jsonl: append-only, one record per line, flushed per pair."""
+
+    def __init__(self, out_dir: Path):
+        self.path = Path(out_dir) / RESULTS_FILE
+        self._file = None
+
+    def _scan(self) -> Iterator[tuple[int, dict[str, Any]]]:
+        """(byte offset, record) of every complete, valid line."""
+        if not self.path.is_file():
+            return
+        with open(self.path, "rb") as f:
+            offset = 0
+            for line in f:
+                if line.endswith(b"\n"):
+                    try:
+                        yield offset, json.loads(line)
+                    except ValueError:
+                        pass
+                offset += len(line)
+
+    def latest(self) -> dict[str, tuple[int, int, tuple[str, ...]]]:
+        """key -> (offset, index, estimator names) of each pair's last record."""
+        return {rec["key"]: (off, rec["index"], tuple(rec["estimators"])) for off, rec in self._scan()}
+
+    def records(self) -> Iterator[dict[str, Any]]:
+        """Each pair's last record, by index, read one at a time."""
+        yield from read_records([(self.path, off, index) for off, index, _ in self.latest().values()])
+
+    def append(self, rec: dict[str, Any]) -> None:
+        if self._file is None:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._file = open(self.path, "ab")
+            if self._file.tell() > 0 and not _ends_with_newline(self.path):
+                self._file.write(b"\n")  # a line cut by a crash stays an (ignored) line of its own
+        self._file.write((json.dumps(rec, allow_nan=True) + "\n").encode())
+        self._file.flush()
+
+    def close(self) -> None:
+        if self._file is not None:
+            self._file.close()
+            self._file = None
+
+
+def read_records(entries: list[tuple[Path, int, int]]) -> Iterator[dict[str, Any]]:
+    """Records at (file, offset, index) entries, in index order, one at a time."""
+    handles: dict[Path, Any] = {}
+    try:
+        for path, off, _ in sorted(entries, key=lambda e: e[2]):
+            f = handles.get(path) or handles.setdefault(path, open(path, "rb"))
+            f.seek(off)
+            yield json.loads(f.readline())
+    finally:
+        for f in handles.values():
+            f.close()
+
+
+def _ends_with_newline(path: Path) -> bool:
+    with open(path, "rb") as f:
+        f.seek(-1, os.SEEK_END)
+        return f.read(1) == b"\n"
+
+
+def read_config(out_dir: Path) -> RunConfig | None:
+    path = Path(out_dir) / RUN_FILE
+    if not path.is_file():
+        return None
+    try:
+        return RunConfig.from_dict(json.loads(path.read_text()))
+    except (ValueError, KeyError, TypeError) as exc:
+        raise FvizError(f"{path}: not an fviz run configuration ({exc})") from None
+
+
+def write_config(out_dir: Path, config: RunConfig) -> None:
+    path = Path(out_dir) / RUN_FILE
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    tmp.write_text(json.dumps(config.to_dict(), indent=2))
+    os.replace(tmp, path)
+
+
+# ------------------------------------------------------------------------------ execution
+
+@dataclass
+class RunOutcome:
+    total: int  # pairs of this run (its shard)
+    reused: int  # already in results.jsonl
+    computed: int  # evaluated now
+    interrupted: bool
+    out_dir: Path
+    failed: int = 0
+    detections: int = 0
+    paths: dict[str, Path] = field(default_factory=dict)
