@@ -68,6 +68,15 @@ def _projection(values: dict[str, np.ndarray], key: str, path: Path) -> np.ndarr
     return values[key].reshape(3, 4)
 
 
+def _projections(calib: Path, key: str) -> dict[int, np.ndarray]:
+    """Cameras 0..3 of a calibration file, ``key`` naming each entry ("P{cam}", "P_rect_0{cam}"); camera 0 required."""
+    values = _read_key_values(calib, "calibration")
+    projections = {cam: _projection(values, key.format(cam=cam), calib) for cam in range(4) if key.format(cam=cam) in values}
+    if 0 not in projections:
+        raise FvizError(f"calibration {calib}: no '{key.format(cam=0)}' entry")
+    return projections
+
+
 def _decompose(P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Rectified P = K [I | t] -> (K, t)."""
     K = P[:, :3].copy()
@@ -201,10 +210,7 @@ def open_odometry(root: Path, sequence: str) -> KittiSequence:
         raise FvizError(f"--sequence {sequence}: no odometry layout under {root} (looked for [odometry/]dataset/sequences/{seq})")
     seq_dir = base / "sequences" / seq
     calib = seq_dir / "calib.txt"
-    values = _read_key_values(calib, "calibration")
-    projections = {cam: _projection(values, f"P{cam}", calib) for cam in range(4) if f"P{cam}" in values}
-    if 0 not in projections:
-        raise FvizError(f"calibration {calib}: no 'P0' entry")
+    projections = _projections(calib, "P{cam}")
     return KittiSequence(
         source="odometry", name=seq, root=root, calib_path=calib, projections=projections,
         image_dirs={cam: seq_dir / f"image_{cam}" for cam in projections},
@@ -225,10 +231,7 @@ def open_raw(root: Path, drive: str) -> KittiSequence:
     if not drive_dir.is_dir():
         raise FvizError(f"--drive {drive}: missing drive folder {drive_dir}")
     calib = date_dir / "calib_cam_to_cam.txt"
-    values = _read_key_values(calib, "calibration")
-    projections = {cam: _projection(values, f"P_rect_0{cam}", calib) for cam in range(4) if f"P_rect_0{cam}" in values}
-    if 0 not in projections:
-        raise FvizError(f"calibration {calib}: no 'P_rect_00' entry")
+    projections = _projections(calib, "P_rect_0{cam}")
     return KittiSequence(
         source="raw", name=name, root=root, calib_path=calib, projections=projections,
         image_dirs={cam: drive_dir / f"image_0{cam}" / "data" for cam in projections},
