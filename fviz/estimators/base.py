@@ -12,7 +12,7 @@ invalid (NaN, zero) matrices into an :class:`Estimate` with ``error`` set.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, Callable
 
 import numpy as np
@@ -27,7 +27,6 @@ class Estimate:
     inliers: np.ndarray | None
     seconds: float
     error: str | None = None
-    info: dict[str, Any] = field(default_factory=dict)
 
     @property
     def ok(self) -> bool:

@@ -32,10 +32,9 @@ def deep_estimator(path: str | Path | None = None, device: str = "cpu"):
     path = Path(path) if path else bundled_weights()
     if not path.is_file():
         raise FvizError(f"--estimator deep:{path}: no such file")
-    model, meta = load_model(path, device)
+    model, _ = load_model(path, device)
 
     def estimate(pair, x_a, x_b):
         return predict_F(model, pair.image_a, pair.image_b)
 
-    estimate.meta = meta
     return estimate
