@@ -29,8 +29,9 @@ def web_command(path: Path, host: str = "127.0.0.1", port: int = 9876, web_port:
     return cmd, url
 
 
-def _stop_group(proc: subprocess.Popen, timeout: float = 10) -> None:
-    """SIGTERM to the process group of ``proc`` (started with ``start_new_session``), SIGKILL if it lingers."""
+def stop_group(proc: subprocess.Popen, timeout: float = 10) -> None:
+    """Stop the process group of ``proc`` (started with ``start_new_session=True``): SIGTERM, SIGKILL if
+    it lingers, and SIGKILL to any member that outlives the leader."""
     import os
     import signal
 
@@ -38,12 +39,19 @@ def _stop_group(proc: subprocess.Popen, timeout: float = 10) -> None:
         try:
             os.killpg(proc.pid, sig)
         except ProcessLookupError:
-            return
+            break
         try:
             proc.wait(timeout=timeout)
-            return
+            os.killpg(proc.pid, signal.SIGKILL)  # the leader is gone: no member of its group survives it
         except subprocess.TimeoutExpired:
             continue
+        except ProcessLookupError:
+            pass
+        break
+    try:
+        proc.wait(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        pass
 
 
 def serve_web(path: Path, host: str = "127.0.0.1", port: int = 9876, web_port: int = 9090) -> None:
@@ -58,7 +66,7 @@ def serve_web(path: Path, host: str = "127.0.0.1", port: int = 9876, web_port: i
     try:
         _, err = proc.communicate()
     except KeyboardInterrupt:
-        _stop_group(proc)
+        stop_group(proc)
         return
     if proc.returncode:
         last = (err or "").strip().splitlines()[-1:] or ["no message"]

@@ -12,7 +12,6 @@ import base64
 import json
 import os
 import shutil
-import signal
 import socket
 import subprocess
 import sys
@@ -24,6 +23,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
+from fviz.viewer import stop_group
 
 CHROMIUM = Path(os.environ.get("FVIZ_CHROMIUM", "/usr/bin/chromium"))
 WINDOW = (1600, 1000)
@@ -97,27 +98,9 @@ def wait_port(port: int, timeout: float, proc: subprocess.Popen | None = None) -
 
 
 def kill_group(proc: subprocess.Popen | None, timeout: float = 10) -> None:
-    """SIGTERM then SIGKILL to the process group of a process started with ``start_new_session=True``."""
-    if proc is None:
-        return
-    for sig in (signal.SIGTERM, signal.SIGKILL):
-        try:
-            os.killpg(proc.pid, sig)
-        except ProcessLookupError:
-            break
-        try:
-            proc.wait(timeout=timeout)
-            # the leader is gone; make sure no member of its group survives it
-            os.killpg(proc.pid, signal.SIGKILL)
-        except subprocess.TimeoutExpired:
-            continue
-        except ProcessLookupError:
-            pass
-        break
-    try:
-        proc.wait(timeout=timeout)
-    except subprocess.TimeoutExpired:
-        pass
+    """Stop a process started with ``start_new_session=True`` and its whole group (None: nothing)."""
+    if proc is not None:
+        stop_group(proc, timeout)
 
 
 def process_tree(pid: int) -> list:

@@ -124,12 +124,15 @@ class FeatureCache:
         if key in self._items:
             self.hits += 1
             return self._items[key]
-        self.misses += 1
-        feats = detect(image, self.cfg)
-        if len(self._items) >= self.max_items:  # bounded memory: drop the oldest
+        return self._put({key: detect(image, self.cfg)})[key]
+
+    def _put(self, new: dict[str, Features]) -> dict[str, Features]:
+        """Store freshly detected features, dropping the oldest beyond ``max_items`` (bounded memory)."""
+        self.misses += len(new)
+        self._items.update(new)
+        while len(self._items) > self.max_items:
             self._items.pop(next(iter(self._items)))
-        self._items[key] = feats
-        return feats
+        return new
 
     def get_pair(self, key_a: str, image_a: np.ndarray, key_b: str, image_b: np.ndarray) -> tuple[Features, Features]:
         """Both images' features; two missing ones are detected in parallel (OpenCV releases the GIL)."""
@@ -141,8 +144,5 @@ class FeatureCache:
             fb = pool.submit(detect, image_b, self.cfg)
             fa = detect(image_a, self.cfg)
             fb = fb.result()
-        self.misses += 2
-        self._items.update({key_a: fa, key_b: fb})
-        while len(self._items) > self.max_items:
-            self._items.pop(next(iter(self._items)))
+        self._put({key_a: fa, key_b: fb})
         return fa, fb
