@@ -264,7 +264,7 @@ def test_two_checkpoints_of_one_file_name_keep_their_own_names(tmp_path):
 
     s = read_recording(out)
     assert {"deep-a-model", "deep-b-model"} <= set(s.estimators)
-    assert {L.est("a", "deep-a-model", "keypoints"), L.est("a", "deep-b-model", "keypoints")} <= set(s.entity_paths)
+    assert {L.est("a", "deep-a-model", "epilines"), L.est("a", "deep-b-model", "epilines")} <= set(s.entity_paths)
 
 
 def test_summary_of_a_foreign_recording_invents_no_names(tmp_path):

@@ -74,15 +74,23 @@ def test_recording_holds_jpeg_images_and_a_blueprint(inspected):
     assert RrdReader(out).blueprints(), "the layout must be stored with the recording"
 
 
-def test_keypoint_residuals_match_an_independent_computation(inspected):
-    doc, ent, _ = inspected
+def test_match_residuals_match_an_independent_computation(inspected):
+    """One set of match positions (the ground truth's entity); each estimator's classes (its tab's override)."""
+    from fviz.record.reader import match_classes
+
+    doc, ent, out = inspected
+    n = doc["n_matches"]
+    points = np.array(col(ent[L.matches("gt")], "Points2D:positions"))
+    assert points.shape == (2 * n, 2) and not any(L.matches(e["name"]) in ent for e in doc["estimators"][1:])
+    xa, xb = points[:n], points[n:] - L.offset_b(doc["pair"]["size_a"])  # b's ends sit below image a
+    classes_of = match_classes(out)
+    assert set(classes_of) == {e["name"] for e in doc["estimators"]}
     for e in doc["estimators"]:
         name, F = e["name"], np.array(e["F"])
-        a, b = ent[L.est("a", name, "keypoints")], ent[L.est("b", name, "keypoints")]
-        xa, xb = np.array(col(a, "Points2D:positions")), np.array(col(b, "Points2D:positions"))
-        assert len(xa) == len(xb) == doc["n_matches"]
-        classes = np.array(col(a, "Points2D:class_ids"))
-        np.testing.assert_array_equal(classes, col(b, "Points2D:class_ids"))
+        both = np.array(classes_of[name])
+        assert len(both) == 2 * n
+        classes = both[:n]
+        np.testing.assert_array_equal(classes, both[n:])  # the two ends of a match: one residual
         # the residual bin (class modulo the bins), away from bin edges (positions are float32 in the file)
         res = symmetric_epipolar_distance(F, xa, xb)
         steps = res / L.RESIDUAL_BIN_PX
@@ -94,7 +102,7 @@ def test_keypoint_residuals_match_an_independent_computation(inspected):
 def lines_of(entity) -> np.ndarray:
     """The epipolar-line strips of an ``epilines`` entity (its epipole cross left out)."""
     strips, labels = col(entity, "LineStrips2D:strips"), col(entity, "LineStrips2D:labels")
-    return np.array([s for s, lab in zip(strips, labels) if lab.endswith("epipolar line")])
+    return np.array([s for s, lab in zip(strips, labels) if not lab])  # the cross's two strips name the epipole
 
 
 def test_epipolar_lines_are_clipped_and_pass_through_the_epipole(inspected):
@@ -175,7 +183,10 @@ def test_failed_estimator_is_reported_and_the_others_still_run(kitti_root, tmp_p
     assert mag["error"] is None and mag["F"] is not None
     ent = read_entities(out)
     assert "no convergence" in one(ent[L.error("boom")], "TextLog:text")
-    assert L.est("a", "boom", "keypoints") not in ent and L.est("a", "magsac", "keypoints") in ent
+    assert L.est("a", "boom", "epilines") not in ent and L.est("a", "magsac", "epilines") in ent
+    from fviz.record.reader import match_classes
+
+    assert set(match_classes(out)) == {"gt", "magsac"}  # no tab classes for the estimator that failed
 
 
 def test_too_few_matches_is_a_data_error_but_still_recorded(kitti_root, tmp_path):

@@ -36,7 +36,7 @@ def test_deep_estimator_in_inspect(tmp_path):
     from rerun.chunk import RrdReader
 
     entities = {ch.entity_path for ch in RrdReader(out).stream().to_chunks()}
-    assert {"/a/est/deep/keypoints", "/b/est/deep/epilines"} <= entities
+    assert {"/est/gt/matches", "/a/est/deep/epilines", "/b/est/deep/epilines"} <= entities
 
 
 def test_bad_checkpoints(tmp_path):

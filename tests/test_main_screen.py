@@ -75,11 +75,12 @@ def test_tabs_overview_one_per_estimator_and_probe(inspected):
     tabs = R.blueprint_tabs(path)
     assert list(tabs) == ["overview", *ESTIMATORS, "probe"]
     for name in ESTIMATORS:
-        # both images, that estimator's keypoints, lines and epipole, the ground truth's lines: nothing else
-        assert sorted(tabs[name]) == sorted(["+ a/image", "+ b/image", f"+ a/est/{name}/**", f"+ b/est/{name}/**",
-                                             "+ a/est/gt/epilines", "+ b/est/gt/epilines"])
+        # both images, the matches (in its classes: the override below), its lines and epipole, the ground
+        # truth's lines: nothing else
+        assert sorted(tabs[name]) == sorted(["+ a/image", "+ b/image", f"+ {L.matches('gt')}", f"+ a/est/{name}/epilines",
+                                             f"+ b/est/{name}/epilines", "+ a/est/gt/epilines", "+ b/est/gt/epilines"])
         assert not any(other in q for q in tabs[name] for other in ESTIMATORS if other != name)
-    assert {"+ a/est/gt/**", "+ a/epipoles", "+ b/epipoles"} <= set(tabs["overview"])
+    assert {f"+ {L.matches('gt')}", "+ a/est/gt/**", "+ a/epipoles", "+ b/epipoles"} <= set(tabs["overview"])
     assert not any(f"/est/{e}" in q for q in tabs["overview"] for e in ESTIMATORS)
     assert {"+ a/probe", "+ b/probe"} <= set(tabs["probe"])
 
@@ -128,14 +129,17 @@ def test_one_colour_per_estimator_everywhere(inspected, eval_run):
 
 
 def test_keypoint_classes_are_the_residual_bin_and_inlier_flag(inspected):
-    """Class ids recomputed from the recorded positions and the F of the --json (OpenCV's lines)."""
+    """Class ids recomputed from the recorded positions and the F of the --json (OpenCV's lines): the ground
+    truth's logged with the matches, an estimator's in its tab's override of them."""
     path, doc = inspected
+    n = doc["n_matches"]
+    points = np.array(rows(path, L.matches("gt"), "Points2D:positions")[0])
+    xa, xb = points[:n], points[n:] - L.offset_b(doc["pair"]["size_a"])
     for name in ("gt", "ransac"):
         F = F_of(doc, name)
-        xa = np.array(rows(path, L.est("a", name, "keypoints"), "Points2D:positions")[0])
-        xb = np.array(rows(path, L.est("b", name, "keypoints"), "Points2D:positions")[0])
-        classes = np.array(rows(path, L.est("a", name, "keypoints"), "Points2D:class_ids")[0])
-        assert len(xa) == len(xb) == len(classes) == doc["n_matches"]
+        both = np.array(R.match_classes(path)[name])
+        classes = both[:n]
+        assert len(xa) == len(xb) == len(classes) == n and np.array_equal(both[n:], classes)
         residual = np.array([sed(F, p, q) for p, q in zip(xa, xb)])
         bins = classes % L.RESIDUAL_CLASSES
         expected = np.minimum(residual // L.RESIDUAL_BIN_PX, L.RESIDUAL_CLASSES - 1)

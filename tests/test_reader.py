@@ -45,7 +45,7 @@ def test_read_inspect_recording(inspected):
         for key in keys:
             assert _same(item.metrics[key][e["name"]], e["metrics"].get(key)), (key, e["name"])
     for ent in (L.image("a"), L.image("b"), L.PAIR_INFO, L.PAIR_METRICS, L.SUMMARY, L.COMPARE, L.epipoles("a"),
-                L.est("a", "ransac", "keypoints"), L.est("b", "gt", "epilines"), L.probe("b"), "/"):
+                L.matches("gt"), L.est("a", "ransac", "epilines"), L.est("b", "gt", "epilines"), L.probe("b"), "/"):
         assert ent in s.entity_paths
     assert s.entity_paths == tuple(R.entity_paths(path))
     assert R.timelines(path) == ["pair", "probe"]
@@ -62,8 +62,8 @@ def test_helpers(inspected):
     # leading "/" accepted
     assert R.column(path, "/pair/metrics", "pair") == [0]
     assert R.column(path, L.PAIR_METRICS, "epi_abs") == [[e["metrics"]["epi_abs"] for e in doc["estimators"]]]
-    classes = R.column(path, L.est("a", "ransac", "keypoints"), "Points2D:class_ids")
-    assert len(classes) == 1 and len(classes[0]) == doc["n_matches"]
+    classes = R.column(path, L.matches("gt"), "Points2D:class_ids")
+    assert len(classes) == 1 and len(classes[0]) == 2 * doc["n_matches"]
     assert "EncodedImage:blob" in R.columns(path, L.image("a"))
     with pytest.raises(FvizError, match="no entity 'nope/x'"):
         R.column(path, "nope/x", "Scalars:scalars")
@@ -114,11 +114,29 @@ def test_triage_like_recording(odometry, tmp_path):
         R.read_recording(path, timeline="frame")
 
 
-@pytest.mark.parametrize("case", ["missing", "directory", "text", "empty", "half", "no-footer"])
+def _written(path, index: bool, end: bool = True):
+    """A small recording by fviz's writer: with Rerun's footer (``index``, as runs) or without it (as a single
+    pair), ending with the end mark or, when ``end`` is False, without one (a file cut between two messages)."""
+    import rerun as rr
+
+    from fviz.record.writer import RecordingWriter
+
+    w = RecordingWriter(path, "fviz-test", index=index)
+    w.rec.set_time(L.TIMELINE, sequence=0)
+    w.rec.log(L.PAIR_INFO, rr.TextDocument("p"))
+    if not end:
+        w.index = True  # close() then adds no end mark, and the file has no footer either
+    w.close()
+    return path
+
+
+@pytest.mark.parametrize("case", ["missing", "directory", "text", "empty", "half", "cut-end-mark", "no-end-mark",
+                                  "no-footer"])
 def test_bad_files(inspected, tmp_path, case):
     path, _ = inspected
     bad = tmp_path / f"{case}.rrd"
     data = path.read_bytes()
+    run = _written(tmp_path / "run.rrd", index=True).read_bytes()
     if case == "directory":
         bad.mkdir()
     elif case == "text":
@@ -127,13 +145,24 @@ def test_bad_files(inspected, tmp_path, case):
         bad.write_bytes(b"")
     elif case == "half":
         bad.write_bytes(data[: len(data) // 2])
+    elif case == "cut-end-mark":
+        bad.write_bytes(data[:-1])  # a single pair's file (no footer), its last message cut
+    elif case == "no-end-mark":
+        _written(bad, index=False, end=False)  # every message intact, none after the data: silently short
     elif case == "no-footer":
-        bad.write_bytes(data[:-1])  # every frame intact, the footer cut: would read as a silently short file
+        bad.write_bytes(run[:-1])  # a run's file, every frame intact, the footer cut: would read as a short file
     for fn in (R.read_recording, R.entity_paths, R.open_rrd):
         with pytest.raises(FvizError) as err:
             fn(bad)
         msg = str(err.value)
         assert "\n" not in msg and msg.startswith(str(bad)), msg
-        if case in ("half", "no-footer"):
+        if case in ("half", "cut-end-mark", "no-end-mark", "no-footer"):
             assert "truncated" in msg
+
+
+@pytest.mark.parametrize("index", [True, False])
+def test_complete_files_with_or_without_footer(tmp_path, index):
+    path = _written(tmp_path / "ok.rrd", index=index)
+    assert R.read_recording(path).items[0].name == "p"
+    assert L.END in R.entity_paths(path) or index
 

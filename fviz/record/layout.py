@@ -11,8 +11,11 @@ Colours
 Entity paths (``{v}`` is the view, ``a`` or ``b``; ``{e}`` an estimator name, ``gt`` for the ground truth):
 
     {v}/image                   EncodedImage (JPEG)
-    {v}/est/{e}/keypoints       Points2D: the matches coloured by e's residual (SED, px); the class (hover)
-                                says the residual bin and whether e counts the match as an inlier
+    est/{e}/matches             Points2D: both ends of every match, x_a in image a then x_b in image b (in the
+                                root frame: b's shifted by ``offset_b``), coloured by e's residual (SED, px);
+                                the class (hover) says the residual bin and whether e counts the match as an
+                                inlier. One pair (inspect) stores only the ground truth's: an estimator's tab
+                                shows its own classes there through a blueprint override (positions once)
     {v}/est/{e}/epilines        e's colour: LineStrips2D of the epipolar lines of sampled evaluation matches,
                                 clipped to the image (in a from F^T x_b, in b from F x_a), and a cross at e's
                                 epipole (name and position as hover text); outside the image or at infinity
@@ -148,6 +151,7 @@ PAIR_METRICS = "pair/metrics"
 COMPARE = "compare"
 PROBE_TEXT = "probe/text"
 TRIAGE_TAGS = "triage/tags"  # triage.rrd: the rank's tags, above the tabs
+END = "fviz/end"  # static, the last message of a recording written without Rerun's footer (see record.writer)
 # The overview's comparison of one pair: (metric key, title), one group of bars each, drawn in 2D units.
 COMPARED_METRICS = (
     ("sed_median", "median SED (px)"),
@@ -183,8 +187,18 @@ def image(view: str) -> str:
 
 
 def est(view: str, name: str, what: str) -> str:
-    """what: keypoints | epilines."""
+    """what: epilines."""
     return f"{view}/est/{name}/{what}"
+
+
+def matches(name: str) -> str:
+    """Both ends of the matches, coloured by ``name``'s residual (see the module docstring)."""
+    return f"est/{name}/matches"
+
+
+def match_points(x_a: np.ndarray, x_b: np.ndarray, size_a: tuple[int, int]) -> np.ndarray:
+    """The positions of ``matches``: (N, 2), (N, 2) -> (2N, 2), b's below image a."""
+    return np.concatenate([x_a, x_b + offset_b(size_a)])
 
 
 def metric(key: str) -> str:
@@ -213,18 +227,19 @@ def offset_b(size_a: tuple[int, int]) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------------------------------- blueprint
-# Every view and container costs ~5 KB of the file (Rerun stores blueprints as uncompressed Arrow):
-# the layout keeps to the views a reader needs, one 2D view per tab for both images.
+# Every view, container and override costs 1.5-5 KB of the file (a chunk with its own schema each, whatever
+# it holds): the layout keeps to the views a reader needs, one 2D view per tab for both images.
 
 
-def _images_view(sizes: tuple[tuple[int, int], tuple[int, int]], name: str, contents: list[str]):
+def _images_view(sizes: tuple[tuple[int, int], tuple[int, int]], name: str, contents: list[str], overrides=None):
     """Image a above image b in one 2D view, with ``contents`` (entity path queries) over them."""
     import rerun.blueprint as rrb
 
     (wa, ha), (wb, hb) = sizes
     bottom = offset_b((wa, ha))[1] + hb
     return rrb.Spatial2DView(origin="/", contents=[f"+ {image('a')}", f"+ {image('b')}", *contents], name=name,
-                             visual_bounds=rrb.VisualBounds2D(x_range=[-0.5, max(wa, wb) - 0.5], y_range=[-0.5, bottom - 0.5]))
+                             visual_bounds=rrb.VisualBounds2D(x_range=[-0.5, max(wa, wb) - 0.5], y_range=[-0.5, bottom - 0.5]),
+                             overrides=overrides)
 
 
 def overview_tab(names: Sequence[str], sizes, single_pair: bool):
@@ -232,7 +247,7 @@ def overview_tab(names: Sequence[str], sizes, single_pair: bool):
     comparison (bars, one pair) and the summary."""
     import rerun.blueprint as rrb
 
-    contents = [f"+ {v}/est/{GT}/**" for v in VIEWS] + [f"+ {epipoles(v)}" for v in VIEWS]
+    contents = [f"+ {matches(GT)}"] + [f"+ {v}/est/{GT}/**" for v in VIEWS] + [f"+ {epipoles(v)}" for v in VIEWS]
     images = _images_view(sizes, "ground truth: residuals (keypoints) and lines (white); every F's epipole", contents)
     chart = rrb.VisualBounds2D(x_range=[-BAR_PITCH, BAR_LABEL_X + 90.0],
                                y_range=[-BAR_HEAD, compare_height(len(names) + 1)])
@@ -242,11 +257,19 @@ def overview_tab(names: Sequence[str], sizes, single_pair: bool):
     return rrb.Horizontal(images, rrb.Vertical(*side, row_shares=[5, 4][: len(side)]), column_shares=[5, 2], name="overview")
 
 
-def estimator_tab(name: str, sizes):
+def estimator_tab(name: str, sizes, classes: np.ndarray | None = None):
     """Both images with only this estimator: its keypoints (residual colours), its lines and epipole (its
-    colour) and the ground truth's lines and epipole (white)."""
-    contents = [f"+ {v}/est/{name}/**" for v in VIEWS] + [f"+ {est(v, GT, 'epilines')}" for v in VIEWS]
-    return _images_view(sizes, name, contents)  # a tab holding one view is titled by the view's name
+    colour) and the ground truth's lines and epipole (white).
+
+    ``classes`` (one pair): the estimator's classes of ``matches`` (2N), shown on the ground truth's matches
+    (the same points) by a blueprint override, so that the positions are stored once."""
+    import rerun as rr
+
+    lines = [f"+ {est(v, name, 'epilines')}" for v in VIEWS] + [f"+ {est(v, GT, 'epilines')}" for v in VIEWS]
+    if classes is None:
+        return _images_view(sizes, name, [f"+ {matches(name)}"] + lines)
+    override = rr.Points2D.from_fields(class_ids=np.asarray(classes, np.uint16))
+    return _images_view(sizes, name, [f"+ {matches(GT)}"] + lines, overrides={matches(GT): override})
 
 
 def probe_tab(sizes):
@@ -267,18 +290,20 @@ def _series_grid(entity_of, tracks: Sequence[tuple[str, str]], name: str):
 
 
 def blueprint(names: Sequence[str], sizes: tuple[tuple[int, int], tuple[int, int]] | None, single_pair: bool, head: bool = False,
-              active: str | None = None):
+              active: str | None = None, classes: dict[str, np.ndarray] | None = None):
     """The stored layout. ``names``: the F's (``gt`` among them or not); ``sizes``: (w, h) of image a and b,
     None when the recording holds no images (eval without --full); ``single_pair``: inspect (comparison
     bars and the probe) rather than a run (metric series and motion tracks over the pair timeline);
-    ``head``: triage's tags above the tabs; ``active``: the tab it opens on (default the first)."""
+    ``head``: triage's tags above the tabs; ``active``: the tab it opens on (default the first);
+    ``classes``: (one pair) each estimator's keypoint classes, see :func:`estimator_tab`."""
     import rerun.blueprint as rrb
 
     ests = [n for n in names if n != GT]
+    classes = classes or {}
     tabs = []
     if sizes is not None:
         tabs.append(overview_tab(ests, sizes, single_pair))
-        tabs += [estimator_tab(n, sizes) for n in ests]
+        tabs += [estimator_tab(n, sizes, classes.get(n)) for n in ests]
         if single_pair:
             tabs.append(probe_tab(sizes))
     if not single_pair:

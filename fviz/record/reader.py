@@ -127,8 +127,9 @@ def open_rrd(path: str | Path):
     """A checked ``rerun.chunk.RrdReader`` on a complete fviz/Rerun file, or FvizError naming it.
 
     Complete means a footer is present (Rerun 0.41 writes one on close; ``fviz`` writers rename the file
-    into place only after that): a file cut exactly between two frames would otherwise read as a shorter,
-    silently incomplete recording."""
+    into place only after that) or, in a file written without one (a single pair), that its last message is
+    ``layout.END``: a file cut exactly between two frames would otherwise read as a shorter, silently
+    incomplete recording."""
     from rerun.chunk import RrdReader
 
     p = Path(path)
@@ -142,17 +143,50 @@ def open_rrd(path: str | Path):
             reader = RrdReader(p)
             if not reader.recordings():
                 raise FvizError(f"{p}: not a recording (no recording store in the file)")
-            reader.store()  # reads the footer's manifest; raises when there is none
+            if not _has_footer(reader) and _last_entity(reader) != _entity(L.END):
+                raise FvizError(f"{p}: truncated recording (no footer and no end mark: cut mid-write?)")
         except FvizError:
             raise
         except Exception as exc:  # ValueError / RuntimeError from the Rust reader: not an RRD, cut, I/O
             msg = _one_line(exc)
-            if "footer" in msg or "manifest" in msg:
-                raise FvizError(f"{p}: truncated recording (no footer: cut mid-write?)") from None
             if "exceeds file size" in msg or "unexpected end" in msg.lower() or "eof" in msg.lower():
                 raise FvizError(f"{p}: truncated recording (cut mid-write?): {msg}") from None
             raise FvizError(f"{p}: not a readable Rerun recording: {msg}") from None
     return reader
+
+
+def _has_footer(reader) -> bool:
+    """Whether the file ends with Rerun's footer (its manifest makes ``store()`` possible)."""
+    try:
+        reader.store()
+    except Exception as exc:  # the reader says there is no footer/manifest; anything else is a real error
+        msg = _one_line(exc)
+        if "footer" in msg or "manifest" in msg:
+            return False
+        raise
+    return True
+
+
+def _last_entity(reader) -> str | None:
+    """Entity path of the recording's last chunk in file order."""
+    last = None
+    for ch in reader.stream().to_chunks():
+        last = ch.entity_path
+    return last
+
+
+def _contents(reader) -> tuple[list[str], list[str]]:
+    """(entity paths in Rerun's spelling, index timelines) of the first recording: from the footer's
+    manifest, or by reading every chunk of a file without one (a single pair's: small)."""
+    if _has_footer(reader):
+        schema = reader.store().schema()
+        return list(schema.entity_paths()), [ix.name for ix in schema.index_columns()]
+    paths: dict[str, None] = {}
+    names: set[str] = set()
+    for ch in reader.stream().to_chunks():
+        paths[ch.entity_path] = None
+        names.update(_index_names(ch.to_record_batch()))
+    return list(paths), sorted(names)
 
 
 def _chunks(path: str | Path, content: str | list[str] | None = None, reader=None) -> Iterator[tuple[str, bool, Any]]:
@@ -193,15 +227,13 @@ def _ints(col) -> list[int]:
 
 def entity_paths(path: str | Path) -> list[str]:
     """Every entity path in the recording, sorted, layout spelling (``["/", "a/image", ...]``)."""
-    reader = open_rrd(path)
-    paths = reader.store().schema().entity_paths()
+    paths, _ = _contents(open_rrd(path))
     return sorted({_layout(p) for p in paths if not p.startswith("/__")})
 
 
 def timelines(path: str | Path) -> list[str]:
     """Every index timeline in the recording, sorted."""
-    reader = open_rrd(path)
-    return sorted(ix.name for ix in reader.store().schema().index_columns())
+    return sorted(_contents(open_rrd(path))[1])
 
 
 def main_timeline(names: list[str] | tuple[str, ...]) -> str | None:
@@ -234,7 +266,7 @@ def column(path: str | Path, entity: str, name: str, timeline: str | None = None
     timeline; rows not on it keep their logged order at the end). FvizError if the entity or column is
     missing (the message lists the columns there are)."""
     reader = open_rrd(path)
-    tl = timeline or main_timeline([ix.name for ix in reader.store().schema().index_columns()])
+    tl = timeline or main_timeline(_contents(reader)[1])
     static: list = []
     rows: list[tuple[int, int, Any]] = []  # (has no time, time, value)
     seen_cols: set[str] = set()
@@ -274,12 +306,12 @@ def read_recording(path: str | Path, timeline: str | None = None) -> RecordingSu
     p = Path(path)
     reader = open_rrd(p)
     rec = reader.recordings()[0]
-    schema = reader.store().schema()
-    all_timelines = sorted(ix.name for ix in schema.index_columns())
+    paths, index_names = _contents(reader)
+    all_timelines = sorted(index_names)
     tl = timeline or main_timeline(all_timelines)
     if timeline is not None and timeline not in all_timelines:
         raise FvizError(f"{p}: no timeline {timeline!r} (it has {', '.join(all_timelines) or 'none'})")
-    entities = sorted({_layout(e) for e in schema.entity_paths() if not e.startswith("/__")})
+    entities = sorted({_layout(e) for e in paths if not e.startswith("/__")})
     error_prefix = L.error("")
 
     values: dict[int, dict[str, list[float]]] = {}  # index -> metric -> values in estimator order
@@ -383,23 +415,24 @@ def recording_blueprint(path: str | Path, active: str | None = None):
     FvizError naming the tabs there are when there is no such tab."""
     s = read_recording(path)
     sizes = image_size(path, "a"), image_size(path, "b")
+    single_pair = L.PROBE_TIMELINE in s.timelines or L.COMPARE in s.entity_paths
+    shared = single_pair and L.matches(L.GT) in s.entity_paths and not any(
+        L.matches(n) in s.entity_paths for n in s.estimators if n != L.GT)
+    classes = match_classes(path) if shared else None
     try:
-        bp = L.blueprint(list(s.estimators), sizes if None not in sizes else None, single_pair=L.PROBE_TIMELINE in s.timelines
-                         or L.COMPARE in s.entity_paths, head=L.TRIAGE_TAGS in s.entity_paths, active=active)
+        bp = L.blueprint(list(s.estimators), sizes if None not in sizes else None, single_pair=single_pair,
+                         head=L.TRIAGE_TAGS in s.entity_paths, active=active, classes=classes)
     except ValueError as exc:
         raise FvizError(f"--tab {active}: {path} has {exc}") from None
     return s.app_id, bp
 
 
-def blueprint_tabs(path: str | Path) -> dict[str, list[str]]:
-    """The stored blueprint's tabs: {tab title: the entity queries of every view in it}, in tab order
-    ({} when the file stores no tabbed blueprint)."""
-    reader = open_rrd(path)
+def _blueprint_fields(reader) -> dict[str, dict[str, Any]]:
+    """The stored blueprint: {entity (layout spelling): {component (without its archetype): last value}};
+    {} when the file stores none."""
     stores = reader.blueprints()
-    if not stores:
-        return {}
     fields: dict[str, dict[str, Any]] = {}
-    for ch in reader.stream(store=stores[0]).to_chunks():
+    for ch in (reader.stream(store=stores[0]).to_chunks() if stores else []):
         rb = ch.to_record_batch()
         slot = fields.setdefault(_layout(ch.entity_path), {})
         for name in rb.schema.names:
@@ -408,6 +441,32 @@ def blueprint_tabs(path: str | Path) -> dict[str, list[str]]:
             value = rb.column(name).to_pylist()[-1]
             if value is not None:
                 slot[name.split(":")[-1]] = value
+    return fields
+
+
+def match_classes(path: str | Path) -> dict[str, list[int]]:
+    """{estimator: class ids of its ``layout.matches``} of the first pair: logged in the recording (runs, and
+    the ground truth of a single pair) or, for an estimator of a single pair, the override of its tab."""
+    reader = open_rrd(path)
+    out: dict[str, list[int]] = {}
+    prefix, suffix = L.matches("\0").split("\0")
+    for ent, _, rb in _chunks(path, _entity(prefix + "**"), reader):
+        if ent.startswith(prefix) and ent.endswith(suffix) and "Points2D:class_ids" in rb.schema.names:
+            out.setdefault(ent[len(prefix): -len(suffix)], rb.column("Points2D:class_ids").to_pylist()[0])
+    fields = _blueprint_fields(reader)
+    for ref, f in fields.items():
+        if ref.startswith("view/") and ref.count("/") == 1:
+            tag = f"{ref}/ViewContents/overrides/{L.matches(L.GT)}/visualizers/"
+            override = next((v for k, v in fields.items() if k.startswith(tag) and "class_ids" in v), None)
+            if override is not None:
+                out.setdefault((f.get("display_name") or [""])[0], override["class_ids"])
+    return out
+
+
+def blueprint_tabs(path: str | Path) -> dict[str, list[str]]:
+    """The stored blueprint's tabs: {tab title: the entity queries of every view in it}, in tab order
+    ({} when the file stores no tabbed blueprint)."""
+    fields = _blueprint_fields(open_rrd(path))
 
     def queries(ref: str) -> list[str]:
         f = fields.get(ref, {})

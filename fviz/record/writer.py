@@ -2,12 +2,19 @@
 
 A crash never leaves a truncated file under the final name. ``eval`` keeps what it has on Ctrl-C by
 closing the writer normally (the partial recording is valid and complete up to the last pair).
+
+Runs end with Rerun's footer (an index of every chunk, for seeking in large files). A single pair's
+recording does without it (it was 150 of 470 KB, and the viewer reads such a file whole); its last message
+is ``layout.END`` instead, which tells a complete file from one cut between two messages.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
+import sys
 from pathlib import Path
+
 import numpy as np
 
 from fviz.data.pair import Pair
@@ -16,7 +23,7 @@ from fviz.evaluate import PairResult
 from fviz.geometry import border_point, clip_lines, describe_epipole, epipoles, lines_in_a, lines_in_b, rotation_angle_deg
 from fviz.record import layout as L
 
-JPEG_QUALITY = 70
+JPEG_QUALITY = 50  # a KITTI frame in ~46 KB; zoomed 1.5x, no difference from 95 that a reader sees
 PROBE_STEPS = 20
 
 
@@ -29,7 +36,7 @@ class RecordingWriter:
     Any exception (Ctrl-C included) discards the temporary file and leaves the previous version in place.
     """
 
-    def __init__(self, path: str | Path, app_id: str = "fviz", blueprint=None):
+    def __init__(self, path: str | Path, app_id: str = "fviz", blueprint=None, index: bool = True):
         import threading
 
         import rerun as rr
@@ -48,8 +55,10 @@ class RecordingWriter:
         self._pump.start()
         self.rec = rr.RecordingStream(app_id)
         self.rec.set_log_time_enabled(False)  # deterministic files: only the ``pair`` timeline
+        self.index = index
         try:
-            self.rec.save(f"/dev/fd/{self._write_fd}", default_blueprint=blueprint)
+            with _stderr_silenced(not index):  # Rerun warns that a file without its index is slower to seek
+                self.rec.save(f"/dev/fd/{self._write_fd}", default_blueprint=blueprint, write_footer=index)
         except Exception as exc:
             self._finish()
             self.tmp.unlink(missing_ok=True)
@@ -75,6 +84,11 @@ class RecordingWriter:
 
     def close(self, commit: bool = True) -> None:
         try:
+            if commit and not self.index:
+                import rerun as rr
+
+                self.rec.flush()  # what was logged goes out first: the end mark is the file's last message
+                self.rec.log(L.END, rr.TextDocument("complete"), static=True)
             self.rec.flush()
             self.rec.disconnect()
         finally:
@@ -95,11 +109,28 @@ class RecordingWriter:
         self.close(commit=exc_type is None)
 
 
+@contextlib.contextmanager
+def _stderr_silenced(silence: bool):
+    """File descriptor 2 to /dev/null for the block (a Rust library's warning, which Python cannot catch)."""
+    if not silence:
+        yield
+        return
+    sys.stderr.flush()
+    saved, null = os.dup(2), os.open(os.devnull, os.O_WRONLY)
+    os.dup2(null, 2)
+    try:
+        yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+        os.close(null)
+
+
 def encode_jpeg(image: np.ndarray) -> bytes:
     import cv2
 
     bgr = cv2.cvtColor(image, cv2.COLOR_RGB2BGR) if image.ndim == 3 else image
-    ok, buf = cv2.imencode(".jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
+    ok, buf = cv2.imencode(".jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY, cv2.IMWRITE_JPEG_OPTIMIZE, 1])
     if not ok:
         raise FvizError("JPEG encoding failed")
     return buf.tobytes()
@@ -131,13 +162,18 @@ def _epipole_marks(name: str, e: np.ndarray, size: tuple[int, int]):
     return cross, label, arrow
 
 
-def _log_marks(rec, path: str, strips: list, colors: list, radii: list, labels: list, arrows: list) -> None:
-    """LineStrips2D (one colour, radius and hover label per strip) and Arrows2D [(origin, vector, colour)]."""
+def _log_marks(rec, path: str, strips: list, colors: list, radii: list, labels: list, arrows: list,
+               clear: bool = True) -> None:
+    """LineStrips2D (one colour, radius and hover label per strip) and Arrows2D [(origin, vector, colour)].
+    clear: log the arrows even when there are none (over a timeline, so that earlier arrows do not linger);
+    a single pair leaves them out, which saves their columns."""
     import rerun as rr
 
-    rec.log(path, rr.LineStrips2D(strips, colors=colors, radii=radii, labels=labels, show_labels=False),
-            rr.Arrows2D(origins=[a[0] for a in arrows] or np.zeros((0, 2)), vectors=[a[1] for a in arrows] or np.zeros((0, 2)),
-                        colors=[a[2] for a in arrows] or None, radii=2.0))
+    marks = [rr.LineStrips2D(strips, colors=colors, radii=radii, labels=labels, show_labels=False)]
+    if arrows or clear:
+        marks.append(rr.Arrows2D(origins=[a[0] for a in arrows] or np.zeros((0, 2)), vectors=[a[1] for a in arrows]
+                                 or np.zeros((0, 2)), colors=[a[2] for a in arrows] or None, radii=2.0))
+    rec.log(path, *marks)
 
 
 def _fmt(v: float | None, digits: int = 3) -> str:
@@ -205,30 +241,38 @@ def log_pair(rec, index: int, pair: Pair, result: PairResult, n_lines: int = 30,
     log_pair_text(rec, result, pair_markdown(result, probe_steps))
     m = result.matches
     sub = line_subset(result, n_lines)
+    classes = match_classes(result)
+    shared = single_pair and L.GT in classes  # one pair: positions once, see layout.estimator_tab
     marks = {v: ([], [], [], [], []) for v in L.VIEWS}  # every F's epipole: strips, colours, radii, labels, arrows
     for r in result.estimators:
         if r.error:
             continue
         color = _rgb(colors[r.name])
-        classes = L.residual_classes(r.residuals_px, r.inliers)
-        rec.log(L.est("a", r.name, "keypoints"), rr.Points2D(m.x_a, class_ids=classes, radii=2.0))
-        rec.log(L.est("b", r.name, "keypoints"), rr.Points2D(m.x_b, class_ids=classes, radii=2.0))
+        if not shared or r.name == L.GT:  # else the blueprint holds its classes
+            rec.log(L.matches(r.name), rr.Points2D(L.match_points(m.x_a, m.x_b, pair.size_a), class_ids=classes[r.name], radii=2.0))
         lines = {"a": lines_in_a(r.F, m.x_b[sub]), "b": lines_in_b(r.F, m.x_a[sub])}
         for v, e in zip(L.VIEWS, epipoles(r.F)):
             seg, inside = clip_lines(lines[v], *sizes[v])
             cross, label, arrow = _epipole_marks(r.name, e, sizes[v])
             arrows = [] if arrow is None else [(*arrow, color)]
             n = int(inside.sum())
+            # lines unlabelled (hovering one names its entity, hence the estimator); the epipole's label says where
             _log_marks(rec, L.est(v, r.name, "epilines"), [*seg[inside], *cross], [color] * (n + 2),
-                       [0.9] * n + [2.0, 2.0], [f"{r.name}: epipolar line"] * n + [label, label], arrows)
+                       [0.9] * n + [2.0, 2.0], [""] * n + [label, label], arrows, clear=not single_pair)
             for target, value in zip(marks[v], ([*cross], [color, color], [2.0, 2.0], [label, label], arrows)):
                 target.extend(value)
     for v in L.VIEWS:
-        _log_marks(rec, L.epipoles(v), *marks[v])
+        _log_marks(rec, L.epipoles(v), *marks[v], clear=not single_pair)
     if single_pair:
         log_comparison(rec, result, colors)
     else:
         log_series(rec, result)
+
+
+def match_classes(result: PairResult) -> dict[str, np.ndarray]:
+    """{estimator: class ids of ``layout.matches`` (residual bin and inlier flag, see layout.residual_classes),
+    both ends of each match alike}, failed ones left out. -> (2N,) each."""
+    return {r.name: np.tile(L.residual_classes(r.residuals_px, r.inliers), 2) for r in result.estimators if not r.error}
 
 
 def _rgb(color) -> np.ndarray:
@@ -342,7 +386,7 @@ def probe_order(result: PairResult, by: str | None = None) -> np.ndarray:
     return idx[np.argsort(-worst, kind="stable")]
 
 
-def _ring(center: np.ndarray, radius: float = 12.0, n: int = 24) -> np.ndarray:
+def _ring(center: np.ndarray, radius: float = 12.0, n: int = 16) -> np.ndarray:
     t = np.linspace(0, 2 * np.pi, n + 1)
     return center + radius * np.stack([np.cos(t), np.sin(t)], -1)
 
@@ -371,14 +415,14 @@ def log_probe(rec, index: int, pair: Pair, result: PairResult, steps: int = PROB
             strips = [*seg[inside], _ring(ring)] + ([[xa, xb + shift]] if v == "a" else [])  # a's frame is the root
             _log_marks(rec, L.probe(v), strips, [_rgb(colors[r.name]) for r in drawn] + [marker] * (len(strips) - len(drawn)),
                        [1.2] * len(drawn) + [1.5, 0.6][: len(strips) - len(drawn)],
-                       [f"{r.name}: epipolar line of match {j}" for r in drawn] + [f"match {j}"] * (len(strips) - len(drawn)), [])
+                       [f"{r.name}: epipolar line of match {j}" for r in drawn] + [f"match {j}"] * (len(strips) - len(drawn)), [],
+                       clear=False)
         rows = [f"| {r.name} | {r.residuals_px[j]:.2f} |" for r in ok]
         text = "\n".join([
             f"**step {k + 1} of {len(order)}**: match {j}, a ({xa[0]:.1f}, {xa[1]:.1f}) → b ({xb[0]:.1f}, {xb[1]:.1f})",
             "", "| F | SED px |", "|---|--:|", *rows, "",
-            f"Evaluation matches in order of {rank}, worst first. The yellow rings mark the match in a and in b; each F "
-            "draws the epipolar line of the other image's point in its colour (ground truth white). A line that "
-            "misses its ring is that F's error at this match.",
+            f"Worst first, by {rank}. Yellow rings: the match in a and b. A line that misses its ring is that F's "
+            "error here (ground truth white).",
         ])
         rec.log(L.PROBE_TEXT, rr.TextDocument(text, media_type="text/markdown"))
     return len(order)
@@ -403,8 +447,9 @@ def write_pair_recording(path: str | Path, pair: Pair, result: PairResult, n_lin
     names = _names(result)
     colors = L.estimator_colors(names)
     steps = len(probe_order(result, probe_by)[:max(probe_steps, 0)])  # checks --probe-by before writing
-    bp = L.blueprint(names, (pair.size_a, pair.size_b), single_pair=True)
-    with RecordingWriter(path, "fviz-inspect", bp) as w:
+    classes = match_classes(result)
+    bp = L.blueprint(names, (pair.size_a, pair.size_b), single_pair=True, classes=classes if L.GT in classes else None)
+    with RecordingWriter(path, "fviz-inspect", bp, index=False) as w:
         log_static(w.rec, names)
         w.rec.set_time(L.PROBE_TIMELINE, sequence=0)
         log_pair(w.rec, 0, pair, result, n_lines, colors, steps)
