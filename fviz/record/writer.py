@@ -428,12 +428,13 @@ def log_probe(rec, index: int, pair: Pair, result: PairResult, steps: int = PROB
     return len(order)
 
 
-def log_static(rec, estimator_names: list[str], series: bool = False) -> None:
-    """Once per recording: the residual legend and, for runs (``series``), the names and colours of the
-    metric series and motion tracks."""
+def log_static(rec, estimator_names: list[str], series: bool = False, legend: bool = True) -> None:
+    """Once per recording: the residual legend (``legend``: when it holds matches) and, for runs (``series``),
+    the names and colours of the metric series and motion tracks."""
     import rerun as rr
 
-    rec.log("/", L.annotation_context(), static=True)
+    if legend:
+        rec.log("/", L.annotation_context(), static=True)
     if series:
         colors = L.estimator_colors(estimator_names)
         style = rr.SeriesLines(names=list(colors), colors=[_rgb(c) for c in colors.values()])

@@ -329,7 +329,7 @@ def write_recording(path: Path, out_dir: Path, config: RunConfig) -> Path:
         if first is not None:
             sizes = (tuple(first["size_a"]), tuple(first["size_b"]))
     with RecordingWriter(path, "fviz-eval", L.blueprint(names, sizes, single_pair=False)) as w:
-        log_static(w.rec, names, series=True)
+        log_static(w.rec, names, series=True, legend=sizes is not None)
         for rec, result, _ in iter_rows(out_dir, config):
             payload = payload_path(out_dir, rec["index"])
             if source is not None and rec.get("result") is not None and payload.is_file():
