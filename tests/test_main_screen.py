@@ -85,6 +85,15 @@ def test_tabs_overview_one_per_estimator_and_probe(inspected):
     assert {"+ a/probe", "+ b/probe"} <= set(tabs["probe"])
 
 
+def test_recording_stays_small(inspected):
+    """Issue "The main screen": an inspect recording with three estimators <= 250 KB (match positions stored
+    once, no footer, JPEG 50). Deterministic: the same data and code write the same bytes, give or take the
+    JPEG encoder's version."""
+    path, _ = inspected
+    assert path.stat().st_size <= 250_000, path.stat().st_size
+    assert L.END in R.entity_paths(path) and not any(L.matches(e) in R.entity_paths(path) for e in ESTIMATORS)
+
+
 def test_eval_recording_has_metric_and_motion_tabs(eval_run):
     assert list(R.blueprint_tabs(eval_run / "eval.rrd")) == ["metrics", "motion", "summary"]
 

@@ -147,6 +147,42 @@ class Shot:
         return int((hit & mask).sum() if mask is not None else hit.sum())
 
 
+def residual_sides(crop: np.ndarray, drawn: np.ndarray, tol: float = 20.0) -> tuple[int, int]:
+    """Overlay pixels of the keypoints' residual scale, as (near the line: bins 0-1, mid-way: bins 3-6) by the
+    nearest bin colour within ``tol``."""
+    import cv2
+
+    bins = L.class_color(np.arange(L.RESIDUAL_CLASSES)).astype(np.float32)
+    # not at the lines, whose anti-aliased edges blend with the photo into teal or violet
+    lines = np.any([near(crop, c) for c in COLORS.values()], axis=0).astype(np.uint8)
+    drawn = drawn & ~cv2.dilate(lines, np.ones((7, 7), np.uint8)).astype(bool)
+    px = crop[drawn].astype(np.float32)
+    dist = np.linalg.norm(px[:, None] - bins[None], axis=-1)
+    nearest = np.where(dist.min(1) < tol, dist.argmin(1), -1)
+    return int(np.isin(nearest, (0, 1)).sum()), int(np.isin(nearest, (3, 4, 5, 6)).sum())
+
+
+def class_sides(classes) -> tuple[int, int]:
+    """The same split of the matches from their recorded classes (one end of each match)."""
+    bins = np.asarray(classes[: len(classes) // 2]) % L.RESIDUAL_CLASSES
+    return int(np.isin(bins, (0, 1)).sum()), int(np.isin(bins, (3, 4, 5, 6)).sum())
+
+
+def assert_keypoints_in_classes_of(name: str, recording, shot: "Shot", crops: dict) -> None:
+    """The keypoints drawn are coloured by ``name``'s residuals: the balance of near-the-line and mid-way
+    colours on screen leans the way the recorded classes of ``name`` do (the ground truth and the robust
+    estimators lean opposite ways on this pair, so showing another's classes fails)."""
+    from fviz.record.reader import match_classes
+
+    near_line, mid = class_sides(match_classes(recording)[name])
+    assert max(near_line, mid) > 3 * min(near_line, mid), f"{name}: {near_line} vs {mid} matches: not a telling pair"
+    seen = [residual_sides(*crops[v]) for v in crops]
+    print(f"{name}'s keypoints: {near_line} near the line vs {mid} mid-way; on screen (pixels) {seen}")
+    for (s_near, s_mid), v in zip(seen, crops):
+        assert (s_near > s_mid) == (near_line > mid) and s_near + s_mid > 200, \
+            f"image {v}: keypoint colours {s_near} near vs {s_mid} mid-way, {name}'s classes {near_line} vs {mid}; {shot.context}"
+
+
 @pytest.fixture(scope="module")
 def inspected(kitti_root, tmp_path_factory):
     return inspect_recording(kitti_root, tmp_path_factory.mktemp("web") / "pair.rrd")[0]
@@ -161,11 +197,12 @@ def pair_frames(odometry):
 def test_overview_shows_both_frames_the_ground_truth_and_the_comparison(inspected, pair_frames, tmp_path):
     shot = Shot(inspected, tmp_path / "overview.png")
     boxes = shot.frames(pair_frames, (0.0, 0.72))
-    white = {}
+    white, crops = {}, {}
     for v, box in boxes.items():
-        crop, drawn = overlay(shot.rgb, pair_frames[v], box)
+        crop, drawn = crops[v] = overlay(shot.rgb, pair_frames[v], box)
         white[v] = int((near(crop, COLORS["gt"]) & drawn).sum())
         assert white[v] > 300, f"{white[v]} white ground-truth line pixels on image {v}; {shot.context}"
+    assert_keypoints_in_classes_of("gt", inspected, shot, crops)
     # the comparison chart (right column, top): one bar per F in its colour, the ground truth's white included
     h, w = shot.rgb.shape[:2]
     chart = (int(0.72 * w), 60, w - int(0.72 * w), int(0.5 * h))
@@ -179,9 +216,9 @@ def test_an_estimator_tab_shows_that_estimator_alone(inspected, pair_frames, tmp
     name = "ransac"
     shot = Shot(inspected, tmp_path / f"tab-{name}.png", "--tab", name)
     boxes = shot.frames(pair_frames)
-    counts = {}
+    counts, crops = {}, {}
     for v, box in boxes.items():
-        crop, drawn = overlay(shot.rgb, pair_frames[v], box)
+        crop, drawn = crops[v] = overlay(shot.rgb, pair_frames[v], box)
         counts[v] = {n: int((near(crop, c) & drawn).sum()) for n, c in COLORS.items()}
         print(f"image {v}: overlay pixels per colour {counts[v]}")
         assert counts[v][name] > 1000, f"too few {name} line pixels on image {v}: {counts[v]}; {shot.context}"
@@ -190,6 +227,7 @@ def test_an_estimator_tab_shows_that_estimator_alone(inspected, pair_frames, tmp
             if other != name:
                 assert counts[v][other] < 0.02 * counts[v][name], \
                     f"{other}'s colour on the {name} tab, image {v}: {counts[v]}; {shot.context}"
+    assert_keypoints_in_classes_of(name, inspected, shot, crops)  # its classes (the blueprint's override), not gt's
 
 
 def test_eval_recording_plots_every_estimator_in_its_colour(kitti_root, tmp_path):
