@@ -111,19 +111,24 @@ class RecordingWriter:
 
 @contextlib.contextmanager
 def _stderr_silenced(silence: bool):
-    """File descriptor 2 to /dev/null for the block (a Rust library's warning, which Python cannot catch)."""
-    if not silence:
+    """File descriptor 2 to /dev/null for the block (a Rust library's warning, which Python cannot catch);
+    nothing is done when ``silence`` is False or the process has no stderr."""
+    saved = None
+    if silence:
+        with contextlib.suppress(OSError, ValueError):
+            sys.stderr.flush()
+            saved = os.dup(2)
+    if saved is None:
         yield
         return
-    sys.stderr.flush()
-    saved, null = os.dup(2), os.open(os.devnull, os.O_WRONLY)
+    null = os.open(os.devnull, os.O_WRONLY)
     os.dup2(null, 2)
+    os.close(null)
     try:
         yield
     finally:
         os.dup2(saved, 2)
         os.close(saved)
-        os.close(null)
 
 
 def encode_jpeg(image: np.ndarray) -> bytes:
