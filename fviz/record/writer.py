@@ -367,33 +367,15 @@ def motion_values(result: PairResult) -> dict[str, list[float]]:
     return out
 
 
-def series_values(result: PairResult) -> dict[str, list[float]]:
-    """{entity path: one value per F, in the order of the series names (NaN for a failed estimator)} of the
-    metric series and motion tracks of a pair."""
-    out = {L.metric(key): [r.metrics.get(key, np.nan) if not r.error else np.nan for r in result.estimators]
-           for key in L.SERIES_METRICS}
-    out.update({L.motion(key): values for key, values in motion_values(result).items()})
-    return out
-
-
 def log_series(rec, result: PairResult) -> None:
-    """The metric series and motion tracks of the pair at the current time (runs of many pairs)."""
+    """The metric series and motion tracks of the pair at the current time (runs of many pairs): one
+    value per F, in the order of the series names (NaN for a failed estimator)."""
     import rerun as rr
 
-    for path, values in series_values(result).items():
-        rec.log(path, rr.Scalars(values))
-
-
-def send_series(rec, indices: list[int], results: list[PairResult]) -> None:
-    """:func:`log_series` of many pairs (``pair`` = indices) in one column per entity: a run's eval.rrd in
-    13 calls instead of 13 per pair."""
-    import rerun as rr
-
-    rows = [series_values(r) for r in results]
-    for path in rows[0] if rows else ():
-        values = np.array([row[path] for row in rows], float)  # (pairs, F's): every pair has every F
-        rec.send_columns(path, indexes=[rr.TimeColumn(L.TIMELINE, sequence=indices)],
-                         columns=rr.Scalars.columns(scalars=values))
+    for key in L.SERIES_METRICS:
+        rec.log(L.metric(key), rr.Scalars([r.metrics.get(key, np.nan) if not r.error else np.nan for r in result.estimators]))
+    for key, values in motion_values(result).items():
+        rec.log(L.motion(key), rr.Scalars(values))
 
 
 def probe_order(result: PairResult, by: str | None = None) -> np.ndarray:

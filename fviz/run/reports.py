@@ -306,26 +306,13 @@ def _pair_text(rec: dict[str, Any], result: PairResult) -> str:
 
 
 def log_summary_pair(rec_stream, index: int, rec: dict[str, Any], result: PairResult) -> None:
-    """The light per-pair payload at ``pair`` = index (and the stream's other current times, e.g. triage's
-    ``rank``): name, summary, metrics, errors, series and tracks."""
+    """The light per-pair payload at ``pair`` = index: name, summary, metrics, errors, series and tracks."""
     from fviz.record import layout as L
     from fviz.record.writer import log_pair_text, log_series
 
     rec_stream.set_time(L.TIMELINE, sequence=index)
     log_pair_text(rec_stream, result, _pair_text(rec, result))
     log_series(rec_stream, result)
-
-
-def log_summary_pairs(rec_stream, rows: list[tuple[dict[str, Any], PairResult]]) -> None:
-    """The light payload of pairs, each at ``pair`` = its index: name, summary, metrics and errors, then
-    the series and tracks of all of them at once."""
-    from fviz.record import layout as L
-    from fviz.record.writer import log_pair_text, send_series
-
-    for rec, result in rows:
-        rec_stream.set_time(L.TIMELINE, sequence=rec["index"])
-        log_pair_text(rec_stream, result, _pair_text(rec, result))
-    send_series(rec_stream, [rec["index"] for rec, _ in rows], [result for _, result in rows])
 
 
 def write_recording(path: Path, out_dir: Path, config: RunConfig) -> Path:
@@ -343,15 +330,13 @@ def write_recording(path: Path, out_dir: Path, config: RunConfig) -> Path:
             sizes = (tuple(first["size_a"]), tuple(first["size_b"]))
     with RecordingWriter(path, "fviz-eval", L.blueprint(names, sizes, single_pair=False)) as w:
         log_static(w.rec, names, series=True, legend=sizes is not None)
-        light = []  # pairs without images (all of them without --full)
         for rec, result, _ in iter_rows(out_dir, config):
             payload = payload_path(out_dir, rec["index"])
             if source is not None and rec.get("result") is not None and payload.is_file():
                 pair = source.load(PairId(**{k: v for k, v in rec["ref"].items() if k != "name"}))
                 log_pair(w.rec, rec["index"], pair, load_payload(payload, result), single_pair=False)
             else:
-                light.append((rec, result))
-        log_summary_pairs(w.rec, light)
+                log_summary_pair(w.rec, rec["index"], rec, result)
     return path
 
 
