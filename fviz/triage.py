@@ -422,6 +422,7 @@ def write_triage_recording(path: Path, config, out_dir: Path, shown: list[Ranked
             text = "\n".join([f"**rank {r.rank}** `{r.key}`: {r.value:.4g}" if not r.failed else f"**rank {r.rank}** `{r.key}`: failed",
                               ""] + [f"- **{t}**: {why}" for t, why in r.tags])
             w.rec.log(TAGS_ENTITY, rr.TextDocument(text, media_type="text/markdown"))
+            w.pair_done()
     return path
 
 

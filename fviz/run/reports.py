@@ -337,6 +337,7 @@ def write_recording(path: Path, out_dir: Path, config: RunConfig) -> Path:
                 log_pair(w.rec, rec["index"], pair, load_payload(payload, result), single_pair=False)
             else:
                 log_summary_pair(w.rec, rec["index"], rec, result)
+            w.pair_done()
     return path
 
 
