@@ -196,6 +196,12 @@ def matches(name: str) -> str:
     return f"est/{name}/matches"
 
 
+def matches_owner(path: str) -> str | None:
+    """The estimator of a :func:`matches` path, None for any other path."""
+    inner = path.removeprefix("est/").removesuffix("/matches")
+    return inner if path == matches(inner) and inner else None
+
+
 def match_points(x_a: np.ndarray, x_b: np.ndarray, size_a: tuple[int, int]) -> np.ndarray:
     """The positions of ``matches``: (N, 2), (N, 2) -> (2N, 2), b's below image a."""
     return np.concatenate([x_a, x_b + offset_b(size_a)])

@@ -449,10 +449,10 @@ def match_classes(path: str | Path) -> dict[str, list[int]]:
     the ground truth of a single pair) or, for an estimator of a single pair, the override of its tab."""
     reader = open_rrd(path)
     out: dict[str, list[int]] = {}
-    prefix, suffix = L.matches("\0").split("\0")
-    for ent, _, rb in _chunks(path, _entity(prefix + "**"), reader):
-        if ent.startswith(prefix) and ent.endswith(suffix) and "Points2D:class_ids" in rb.schema.names:
-            out.setdefault(ent[len(prefix): -len(suffix)], rb.column("Points2D:class_ids").to_pylist()[0])
+    for ent, _, rb in _chunks(path, "/est/**", reader):
+        name = L.matches_owner(ent)
+        if name is not None and "Points2D:class_ids" in rb.schema.names:
+            out.setdefault(name, rb.column("Points2D:class_ids").to_pylist()[0])
     fields = _blueprint_fields(reader)
     for ref, f in fields.items():
         if ref.startswith("view/") and ref.count("/") == 1:
