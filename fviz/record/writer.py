@@ -35,6 +35,8 @@ class RecordingWriter:
     sink writes into a pipe that a thread copies to the temporary file: a full disk or a size limit then
     raises here, where a sink writing the file itself stops with a log line and its flush never returns.
     Any exception (Ctrl-C included) discards the temporary file and leaves the previous version in place.
+    ``index``: end the file with Rerun's footer (runs); without it (a single pair) the last message is
+    ``layout.END`` (see the module docstring).
     """
 
     def __init__(self, path: str | Path, app_id: str = "fviz", blueprint=None, index: bool = True):
