@@ -114,19 +114,30 @@ def test_triage_like_recording(odometry, tmp_path):
         R.read_recording(path, timeline="frame")
 
 
-def _written(path, index: bool, end: bool = True):
-    """A small recording by fviz's writer: with Rerun's footer (``index``, as runs) or without it (as a single
-    pair), ending with the end mark or, when ``end`` is False, without one (a file cut between two messages)."""
+def _written(path, index: bool):
+    """A small recording by fviz's writer: with Rerun's footer (``index``, as runs) or without it and ending
+    with the end mark (as a single pair)."""
     import rerun as rr
 
     from fviz.record.writer import RecordingWriter
 
-    w = RecordingWriter(path, "fviz-test", index=index)
-    w.rec.set_time(L.TIMELINE, sequence=0)
-    w.rec.log(L.PAIR_INFO, rr.TextDocument("p"))
-    if not end:
-        w.index = True  # close() then adds no end mark, and the file has no footer either
-    w.close()
+    with RecordingWriter(path, "fviz-test", index=index) as w:
+        w.rec.set_time(L.TIMELINE, sequence=0)
+        w.rec.log(L.PAIR_INFO, rr.TextDocument("p"))
+    return path
+
+
+def _without_end_mark(path):
+    """The same data written by Rerun alone with no footer: every message intact and nothing after the
+    data, as a single pair's file cut exactly before its end mark."""
+    import rerun as rr
+
+    rec = rr.RecordingStream("fviz-test")
+    rec.save(str(path), write_footer=False)
+    rec.set_time(L.TIMELINE, sequence=0)
+    rec.log(L.PAIR_INFO, rr.TextDocument("p"))
+    rec.flush()
+    rec.disconnect()
     return path
 
 
@@ -148,7 +159,7 @@ def test_bad_files(inspected, tmp_path, case):
     elif case == "cut-end-mark":
         bad.write_bytes(data[:-1])  # a single pair's file (no footer), its last message cut
     elif case == "no-end-mark":
-        _written(bad, index=False, end=False)  # every message intact, none after the data: silently short
+        _without_end_mark(bad)  # would read as a silently short file
     elif case == "no-footer":
         bad.write_bytes(run[:-1])  # a run's file, every frame intact, the footer cut: would read as a short file
     for fn in (R.read_recording, R.entity_paths, R.open_rrd):

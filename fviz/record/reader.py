@@ -16,9 +16,10 @@ from __future__ import annotations
 
 import math
 import warnings
+import weakref
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any, Iterator, NamedTuple
 
 from fviz.errors import FvizError
 from fviz.record import layout as L
@@ -143,7 +144,8 @@ def open_rrd(path: str | Path):
             reader = RrdReader(p)
             if not reader.recordings():
                 raise FvizError(f"{p}: not a recording (no recording store in the file)")
-            if not _has_footer(reader) and _last_entity(reader) != _entity(L.END):
+            contents = _contents(reader)
+            if not contents.footer and contents.last != _entity(L.END):
                 raise FvizError(f"{p}: truncated recording (no footer and no end mark: cut mid-write?)")
         except FvizError:
             raise
@@ -155,38 +157,37 @@ def open_rrd(path: str | Path):
     return reader
 
 
-def _has_footer(reader) -> bool:
-    """Whether the file ends with Rerun's footer (its manifest makes ``store()`` possible)."""
+class _Contents(NamedTuple):
+    footer: bool  # the file ends with Rerun's footer (its manifest makes ``store()`` possible)
+    paths: list[str]  # entity paths, Rerun's spelling
+    timelines: list[str]  # index timelines
+    last: str | None  # entity of the last chunk in file order (read only for a file without a footer)
+
+
+_CONTENTS: "weakref.WeakKeyDictionary[Any, _Contents]" = weakref.WeakKeyDictionary()
+
+
+def _contents(reader) -> _Contents:
+    """What the first recording holds: from the footer's manifest or, in a file without one (a single
+    pair's: small), from one pass over its chunks. Read once per reader."""
+    if reader in _CONTENTS:
+        return _CONTENTS[reader]
     try:
-        reader.store()
+        schema = reader.store().schema()
+        out = _Contents(True, list(schema.entity_paths()), [ix.name for ix in schema.index_columns()], None)
     except Exception as exc:  # the reader says there is no footer/manifest; anything else is a real error
         msg = _one_line(exc)
-        if "footer" in msg or "manifest" in msg:
-            return False
-        raise
-    return True
-
-
-def _last_entity(reader) -> str | None:
-    """Entity path of the recording's last chunk in file order."""
-    last = None
-    for ch in reader.stream().to_chunks():
-        last = ch.entity_path
-    return last
-
-
-def _contents(reader) -> tuple[list[str], list[str]]:
-    """(entity paths in Rerun's spelling, index timelines) of the first recording: from the footer's
-    manifest, or by reading every chunk of a file without one (a single pair's: small)."""
-    if _has_footer(reader):
-        schema = reader.store().schema()
-        return list(schema.entity_paths()), [ix.name for ix in schema.index_columns()]
-    paths: dict[str, None] = {}
-    names: set[str] = set()
-    for ch in reader.stream().to_chunks():
-        paths[ch.entity_path] = None
-        names.update(_index_names(ch.to_record_batch()))
-    return list(paths), sorted(names)
+        if "footer" not in msg and "manifest" not in msg:
+            raise
+        paths: dict[str, None] = {}
+        names: set[str] = set()
+        last = None
+        for ch in reader.stream().to_chunks():
+            paths[last := ch.entity_path] = None
+            names.update(ch.timeline_names)
+        out = _Contents(False, list(paths), sorted(names), last)
+    _CONTENTS[reader] = out
+    return out
 
 
 def _chunks(path: str | Path, content: str | list[str] | None = None, reader=None) -> Iterator[tuple[str, bool, Any]]:
@@ -227,13 +228,13 @@ def _ints(col) -> list[int]:
 
 def entity_paths(path: str | Path) -> list[str]:
     """Every entity path in the recording, sorted, layout spelling (``["/", "a/image", ...]``)."""
-    paths, _ = _contents(open_rrd(path))
+    paths = _contents(open_rrd(path)).paths
     return sorted({_layout(p) for p in paths if not p.startswith("/__")})
 
 
 def timelines(path: str | Path) -> list[str]:
     """Every index timeline in the recording, sorted."""
-    return sorted(_contents(open_rrd(path))[1])
+    return sorted(_contents(open_rrd(path)).timelines)
 
 
 def main_timeline(names: list[str] | tuple[str, ...]) -> str | None:
@@ -266,7 +267,7 @@ def column(path: str | Path, entity: str, name: str, timeline: str | None = None
     timeline; rows not on it keep their logged order at the end). FvizError if the entity or column is
     missing (the message lists the columns there are)."""
     reader = open_rrd(path)
-    tl = timeline or main_timeline(_contents(reader)[1])
+    tl = timeline or main_timeline(_contents(reader).timelines)
     static: list = []
     rows: list[tuple[int, int, Any]] = []  # (has no time, time, value)
     seen_cols: set[str] = set()
@@ -306,8 +307,8 @@ def read_recording(path: str | Path, timeline: str | None = None) -> RecordingSu
     p = Path(path)
     reader = open_rrd(p)
     rec = reader.recordings()[0]
-    paths, index_names = _contents(reader)
-    all_timelines = sorted(index_names)
+    contents = _contents(reader)
+    paths, all_timelines = contents.paths, sorted(contents.timelines)
     tl = timeline or main_timeline(all_timelines)
     if timeline is not None and timeline not in all_timelines:
         raise FvizError(f"{p}: no timeline {timeline!r} (it has {', '.join(all_timelines) or 'none'})")
@@ -416,9 +417,7 @@ def recording_blueprint(path: str | Path, active: str | None = None):
     s = read_recording(path)
     sizes = image_size(path, "a"), image_size(path, "b")
     single_pair = L.PROBE_TIMELINE in s.timelines or L.COMPARE in s.entity_paths
-    shared = single_pair and L.matches(L.GT) in s.entity_paths and not any(
-        L.matches(n) in s.entity_paths for n in s.estimators if n != L.GT)
-    classes = match_classes(path) if shared else None
+    classes = match_classes(path) if single_pair and L.matches(L.GT) in s.entity_paths else None
     try:
         bp = L.blueprint(list(s.estimators), sizes if None not in sizes else None, single_pair=single_pair,
                          head=L.TRIAGE_TAGS in s.entity_paths, active=active, classes=classes)

@@ -636,7 +636,7 @@ def _preload_reports() -> None:
     import threading
 
     def run() -> None:
-        for name in ("pyarrow.parquet", "pyarrow.compute", "rerun", "rerun.blueprint", "fviz.record.writer"):
+        for name in ("pyarrow.parquet", "rerun", "rerun.blueprint", "fviz.record.writer"):
             with contextlib.suppress(Exception):
                 __import__(name)
 
