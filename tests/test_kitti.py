@@ -82,7 +82,12 @@ def test_layout_auto_detection(kitti_root, tmp_path):
     one.mkdir(parents=True)
     (one / "00").symlink_to(kitti_root / "odometry" / "dataset" / "sequences" / "00")
     assert open_dataset(tmp_path / "one").name == "00"
-    assert open_dataset(kitti_root / "raw").name == "2011_09_26_drive_0001"
+    drive = tmp_path / "raw" / "2011_09_26"
+    drive.mkdir(parents=True)
+    for f in (kitti_root / "raw" / "2011_09_26").iterdir():
+        if f.name != "2011_09_26_drive_0002_sync":
+            (drive / f.name).symlink_to(f)
+    assert open_dataset(tmp_path / "raw").name == "2011_09_26_drive_0001"
     assert open_dataset(kitti_root, drive="2011_09_26_0001").source == "raw"
     # several: the error lists every one of them, so the user can pick
     sequences = sorted(p.name for p in (kitti_root / "odometry" / "dataset" / "sequences").iterdir() if p.is_dir())
@@ -90,8 +95,10 @@ def test_layout_auto_detection(kitti_root, tmp_path):
     with pytest.raises(FvizError, match="several") as err:
         open_dataset(kitti_root / "odometry")
     assert all(f"--sequence {s}" in str(err.value) for s in sequences)
-    with pytest.raises(FvizError, match="several.*--drive 2011_09_26_drive_0001"):
+    with pytest.raises(FvizError, match="several.*--drive 2011_09_26_drive_0001, --drive 2011_09_26_drive_0002"):
         open_dataset(kitti_root)
+    with pytest.raises(FvizError, match="several.*--drive 2011_09_26_drive_0001, --drive 2011_09_26_drive_0002"):
+        open_dataset(kitti_root / "raw")
 
 
 def make_layout(tmp_path, kitti_root, frames=3, calib=True, poses=True):
