@@ -9,7 +9,7 @@ A recipe has three tables, every key optional (defaults below):
     [data]    source, root, sequences, drives, val_sequences, kind, steps, cams, frames, frame_stride,
               val_fraction, train_size, val_size, val_points, cache, synthetic = { SceneConfig fields }
     [train]   batch_size, lr, schedule, warmup_steps, weight_decay, epochs, max_steps, l1_weight, l2_weight, loss_frame,
-              grad_clip, seed, device, amp, num_workers, threads, out_dir, init, checkpoint_every, val_every,
+              grad_clip, t_norm_weight, seed, device, amp, num_workers, threads, out_dir, init, checkpoint_every, val_every,
               log_every, export_dtype
 
     [variants."siamese-rec-pos-fbn"]   # optional per-variant overrides, applied when
@@ -119,6 +119,10 @@ class TrainSection:
     l2_weight: float = field(default=1.0, metadata={"min": 0.0})
     loss_frame: str = field(default="conditioned", metadata=_choices("conditioned", "pixel"))
     grad_clip: float = field(default=1.0, metadata={"min": 0.0})  # max gradient norm (0: off)
+    # REC heads: keep the raw translation near unit length (fviz/models/heads.py): the t outputs of the
+    # starting weights are rescaled to median length 1 before the first step, and the loss adds
+    # t_norm_weight * mean(log ||raw t||)^2.  0 turns both off (the parametrisation before 2026-12).
+    t_norm_weight: float = field(default=0.01, metadata={"min": 0.0})
     seed: int = 0
     device: str = "auto"  # auto | cpu | cuda | cuda:N
     amp: str = field(default="auto", metadata=_choices("auto", "bf16", "fp16", "off"))
