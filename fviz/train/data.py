@@ -44,6 +44,7 @@ import torch
 from fviz.errors import FvizError
 from fviz.geometry.fundamental import NormalizationError, normalize
 
+MAX_CACHED_FRAMES = 4000  # decoded KITTI frames kept per process (~1.9 GB at 1242 x 375)
 SEED_SPAN = 10**7  # synthetic seeds of one recipe seed: [base, base + SEED_SPAN)
 
 
@@ -323,13 +324,17 @@ def frames_of(ds, cam: int) -> set[int]:
     return {int(p.stem) for p in d.glob("*.png") if p.stem.isdigit()}
 
 
-def load_kitti_pair(ds, item: KittiItem):
-    """The :class:`fviz.data.pair.Pair` of an item (forward direction; ``reverse`` is applied by the caller)."""
+def kitti_pair_id(ds, item: KittiItem):
+    """The :class:`fviz.data.pair.PairId` of an item (forward direction; ``reverse`` is applied by the caller)."""
     from fviz.data.pair import PairId
 
     frame_b = item.frame + (item.step if item.kind == "temporal" else 0)
-    pid = PairId(ds.source, ds.name, item.kind, item.frame, frame_b, item.cams[0], item.cams[1], str(ds.root))
-    return ds.load(pid)
+    return PairId(ds.source, ds.name, item.kind, item.frame, frame_b, item.cams[0], item.cams[1], str(ds.root))
+
+
+def load_kitti_pair(ds, item: KittiItem):
+    """The :class:`fviz.data.pair.Pair` of an item (forward direction; ``reverse`` is applied by the caller)."""
+    return ds.load(kitti_pair_id(ds, item))
 
 
 class KittiPairs(torch.utils.data.Dataset):
@@ -347,6 +352,7 @@ class KittiPairs(torch.utils.data.Dataset):
         self.augment = augment
         self.seed = int(seed)
         self._open: dict = {}
+        self._images: dict[str, np.ndarray] = {}
 
     def __len__(self) -> int:
         return len(self.items)
@@ -354,6 +360,7 @@ class KittiPairs(torch.utils.data.Dataset):
     def __getstate__(self):
         state = dict(self.__dict__)
         state["_open"] = {}
+        state["_images"] = {}
         return state
 
     def _dataset(self, item: KittiItem):
@@ -364,11 +371,31 @@ class KittiPairs(torch.utils.data.Dataset):
             self._open[k] = open_dataset(item.root, **{item.key: item.name})
         return self._open[k]
 
+    def _gray(self, path) -> np.ndarray:
+        """A frame's full-resolution gray image, decoded once per process (a frame is in many pairs:
+        steps 1-3, both directions, stereo): (H, W) uint8.  ~0.47 MB a KITTI frame."""
+        key = str(path)
+        if key not in self._images:
+            import cv2
+
+            from fviz.data.kitti import read_image
+
+            image = read_image(path)
+            if len(self._images) >= MAX_CACHED_FRAMES:
+                self._images.pop(next(iter(self._images)))
+            self._images[key] = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY) if image.ndim == 3 else image
+        return self._images[key]
+
     def load(self, i: int, rng: np.random.Generator | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(img_a (h, w), img_b (h, w), F (3, 3) normalized) as float32 numpy at the input size."""
         item = self.items[i]
-        pair = load_kitti_pair(self._dataset(item), item)
-        image_a, image_b, F = pair.image_a, pair.image_b, pair.F_gt
+        ds = self._dataset(item)
+        pid = kitti_pair_id(ds, item)
+        F = ds.ground_truth(pid)[4]
+        image_a, image_b = (self._gray(ds.image_path(c, f)) for c, f in ((pid.cam_a, pid.frame_a), (pid.cam_b, pid.frame_b)))
+        if image_a.shape != image_b.shape:
+            raise FvizError(f"{item.label}: images of different sizes ({image_a.shape[1]}x{image_a.shape[0]} and "
+                            f"{image_b.shape[1]}x{image_b.shape[0]})")
         if item.reverse:
             image_a, image_b, F = image_b, image_a, F.T
         aug = self.augment if rng is not None else Augment()
@@ -386,17 +413,18 @@ class KittiPairs(torch.utils.data.Dataset):
         return img_a, img_b, F
 
 
-def gt_agreement_px(pair) -> float:
+def gt_agreement_px(pair, features=None) -> float:
     """How well a pair's ground truth agrees with its images: median SED (px) of the SIFT + MAGSAC++ inliers
-    to F_gt (NaN with fewer than 16 inliers).  The sample data's README: 0.1-0.9 px when the poses are good."""
+    to F_gt (NaN with fewer than 16 inliers).  The sample data's README: 0.1-0.9 px when the poses are good.
+    ``features``: a :class:`fviz.estimators.features.FeatureCache` shared across pairs (a frame is detected once)."""
     import cv2
 
     from fviz.estimators.features import FeatureCache, FeatureConfig, match
     from fviz.geometry import symmetric_epipolar_distance
 
-    cfg = FeatureConfig()
-    fa, fb = FeatureCache(cfg).get_pair(pair.id.key_a, pair.image_a, pair.id.key_b, pair.image_b)
-    m = match(fa, fb, cfg)
+    features = features or FeatureCache(FeatureConfig(), threads=1)
+    fa, fb = features.get_pair(pair.id.key_a, pair.image_a, pair.id.key_b, pair.image_b)
+    m = match(fa, fb, features.cfg)
     if len(m) < 16:
         return float("nan")
     _, mask = cv2.findFundamentalMat(m.x_a, m.x_b, cv2.USAC_MAGSAC, 1.0, 0.999, 10000)
@@ -490,6 +518,9 @@ def filter_by_gt_agreement(items: list[KittiItem], max_sed_px: float, cache_path
             cache = {}
     opened: dict = {}
     kept = []
+    from fviz.estimators.features import FeatureCache, FeatureConfig
+
+    features = FeatureCache(FeatureConfig(), threads=1)  # items are in frame order: neighbours share frames
     try:
         for n, item in enumerate(items):
             fwd = KittiItem(**{**item.__dict__, "reverse": False})
@@ -499,7 +530,7 @@ def filter_by_gt_agreement(items: list[KittiItem], max_sed_px: float, cache_path
                     from fviz.data.kitti import open_dataset
 
                     opened[k] = open_dataset(fwd.root, **{fwd.key: fwd.name})
-                cache[fwd.label] = gt_agreement_px(load_kitti_pair(opened[k], fwd))
+                cache[fwd.label] = gt_agreement_px(load_kitti_pair(opened[k], fwd), features)
             if cache[fwd.label] <= max_sed_px:  # NaN (too few matches to tell) is dropped too
                 kept.append(item)
             if on_item is not None:
