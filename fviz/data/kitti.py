@@ -239,7 +239,11 @@ class KittiSequence:
 
     @cached_property
     def poses(self) -> np.ndarray:
-        """(N, 4, 4) camera-0 -> world transforms, one per frame (raw drives: from oxts, NaN without a packet)."""
+        """(N, 4, 4) camera-0 -> world transforms, one per frame.
+
+        Raw drives: from every oxts packet at once (:func:`oxts_camera_poses`; NaN for a frame without one, which
+        :meth:`pose` names when a pair needs it); a corrupt packet is an error for the whole drive, as a NaN in an
+        odometry poses file is."""
         if self.oxts_dir is not None:
             return oxts_camera_poses(self.oxts_dir, self.calib_path.parent, self.num_frames)
         if self.poses_path is None:
