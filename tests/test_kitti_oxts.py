@@ -205,3 +205,21 @@ def test_training_selects_raw_temporal_pairs_with_packets(kitti_root, tmp_path):
     assert np.isfinite(F.numpy()).all()
     with pytest.raises(FvizError, match="gives no temporal pairs"):  # drive 0001: a packet for frame 0 only
         items("2011_09_26_drive_0001")
+
+
+def test_cli_eval_records_a_missing_packet_per_pair_and_goes_on(drive_copy, tmp_path):
+    from cli_util import read_csv
+
+    root, oxts = drive_copy
+    missing = oxts / "0000000002.txt"
+    missing.unlink()
+    out = tmp_path / "run"
+    proc = run_fviz("eval", "--kitti-root", root, "--drive", DRIVE, "--pair", "temporal", "--frames", "0:5", "-e", "magsac",
+                    "--out-dir", out, "--workers", "1", timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    rows = {(int(r["frame_a"]), r["estimator"]): r for r in read_csv(out / "metrics.csv")}
+    for frame in (1, 2):  # 1 -> 2 and 2 -> 3 need the missing packet
+        assert rows[(frame, "magsac")]["pair_error"] == f"missing oxts packet of frame 2: {missing}"
+    for frame in (0, 3):
+        r = rows[(frame, "magsac")]
+        assert not r["pair_error"] and float(r["gt_accuracy_px"]) == OXTS_GT_ACCURACY_PX and float(r["sed_median"]) < 1.0
