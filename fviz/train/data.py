@@ -476,10 +476,10 @@ def kitti_items(recipe, name: str) -> list[KittiItem]:
     key, ds = _open_named(roots, name)
     items: list[KittiItem] = []
     for kind in recipe.kinds:
-        if kind == "temporal" and key == "drive":
-            continue  # raw drives have no poses here
         for cams in _camera_pairs(recipe, kind, sorted(ds.projections)):
             frames = frames_of(ds, cams[0]) & frames_of(ds, cams[1])
+            if kind == "temporal":
+                frames &= ds.pose_frames  # both frames need a pose (raw drives: an oxts packet)
             lo, hi = (d.frames[0], d.frames[1]) if d.frames else (0, 1 << 30)
             steps = d.steps if kind == "temporal" else [0]
             for f in sorted(frames):
