@@ -469,20 +469,40 @@ def _camera_pairs(recipe, kind: str, available: list[int]) -> list[tuple[int, in
     return [(a, b) for a in cams for b in cams if a < b]
 
 
-def kitti_items(recipe, name: str) -> list[KittiItem]:
-    """Every pair of one sequence / drive the recipe selects (kinds, cameras, steps, directions, frames)."""
+PAPER_SPLIT = {"train": (0.0, 0.8), "val": (0.8, 0.9), "test": (0.9, 1.0)}  # the paper's 1600 / 200 / 200
+
+
+def paper_split_frames(name: str, frames: Sequence[int], part: str) -> set[int]:
+    """The paper's split (random frames of the same drives, 80 / 10 / 10 %): the frames of ``part``
+    ("train", "val" or "test") of one sequence or drive, from a permutation seeded by its name (so
+    every camera pair and every run draws the same frames)."""
+    import zlib
+
+    order = sorted(frames)
+    perm = np.random.default_rng(zlib.crc32(name.encode())).permutation(len(order))
+    lo, hi = PAPER_SPLIT[part]
+    return {order[i] for i in perm[int(round(lo * len(order))) : int(round(hi * len(order)))]}
+
+
+def kitti_items(recipe, name: str, part: str | None = None) -> list[KittiItem]:
+    """Every pair of one sequence / drive the recipe selects (kinds, cameras, steps, directions, frames);
+    ``part``: only pairs whose first frame is in that part of the paper's split (:func:`paper_split_frames`,
+    drawn from the frames of camera 0, or the first camera present)."""
     d = recipe.data
     roots = [str(resolve_root(r)) for r in [d.root, *d.roots] if r]
     key, ds = _open_named(roots, name)
     items: list[KittiItem] = []
+    if part is not None:
+        in_part = paper_split_frames(name, set().union(*(frames_of(ds, c) for c in ds.projections)), part)
     for kind in recipe.kinds:
         for cams in _camera_pairs(recipe, kind, sorted(ds.projections)):
             frames = frames_of(ds, cams[0]) & frames_of(ds, cams[1])
             if kind == "temporal":
                 frames &= ds.pose_frames  # both frames need a pose (raw drives: an oxts packet)
+            firsts = frames & in_part if part is not None else frames
             lo, hi = (d.frames[0], d.frames[1]) if d.frames else (0, 1 << 30)
             steps = d.steps if kind == "temporal" else [0]
-            for f in sorted(frames):
+            for f in sorted(firsts):
                 if not lo <= f < hi or (f - lo) % d.frame_stride:
                     continue
                 for step in steps:
@@ -568,7 +588,12 @@ def make_datasets(recipe, render_device: str | torch.device = "cpu") -> tuple[to
         raise FvizError(f"data.val_sequences {sorted(held_out)} are also training sequences: a held-out sequence must not be trained on")
     train_items: list[KittiItem] = []
     val_items: list[KittiItem] = []
-    for name in names:
+    if d.split == "paper" and d.val_sequences:
+        raise FvizError("data.split = 'paper' draws validation frames from the training drives: leave data.val_sequences empty")
+    for name in names if d.split == "paper" else ():
+        train_items += kitti_items(recipe, name, "train")
+        val_items += kitti_items(recipe, name, "val")
+    for name in names if d.split != "paper" else ():
         items = kitti_items(recipe, name)
         n_val = 0 if d.val_sequences else int(round(len(items) * d.val_fraction))
         if d.val_fraction > 0 and not d.val_sequences and len(items) > 1:

@@ -97,6 +97,9 @@ class DataSection:
     kinds: list[str] = field(default_factory=list, metadata=_choices("temporal", "stereo"))  # overrides kind when given
     cameras: list[int] = field(default_factory=list, metadata={"min": 0, "max": 3})  # cameras to pair (empty: cams)
     both_directions: bool = False  # temporal t -> t+k and t+k -> t; stereo a -> b and b -> a
+    # "paper": the paper's split, random frames of the same sequences / drives, 80 % train, 10 % validation
+    # (10 % test, never loaded here: fviz.train.data.paper_split_frames); "": val_sequences or val_fraction
+    split: str = field(default="", metadata=_choices("", "paper"))
     max_gt_sed_px: float = field(default=0.0, metadata={"min": 0.0})  # > 0: drop pairs whose GT disagrees with the images
     augment_swap: float = field(default=0.0, metadata={"min": 0.0, "max": 1.0})  # probability: a <-> b, F -> F^T
     augment_flip: float = field(default=0.0, metadata={"min": 0.0, "max": 1.0})  # probability: both mirrored
