@@ -148,6 +148,10 @@ def _print_table(result, path: Path) -> None:
             t.add_row(r.name, *(f"{r.metrics.get(c, float('nan')):.4g}" for c in cols), f"{r.seconds:.3f}")
     console = Console(width=max(Console().width, 130))
     console.print(t)
+    from fviz.record.writer import precision_lines
+
+    for line in precision_lines(result.match_precision)[1:]:
+        console.print(line)
     console.print(f"recording: {path}")
 
 

@@ -1,7 +1,9 @@
 """One registry from a name to an estimator.
 
-- a built-in name: ``7point``, ``8point``, ``lmeds``, ``ransac``, ``magsac``, ``deep`` (the bundled model),
-  ``ahead`` (the straight-ahead baseline, from the cameras alone);
+- a built-in name: ``7point``, ``8point``, ``lmeds``, ``ransac``, ``magsac``, OpenCV's USAC presets
+  ``usac-default``, ``usac-accurate``, ``usac-prosac``, ``usac-fm8pts``, ``usac-parallel``
+  (:mod:`fviz.estimators.classical`), ``poselib``, ``poselib-E``, ``colmap`` (:mod:`fviz.estimators.external`),
+  ``deep`` (the bundled model), ``ahead`` (the straight-ahead baseline, from the cameras alone);
 - ``deep:PATH``: a checkpoint trained by ``fviz train``;
 - ``module:function``: a user's own ``function(pair, x_a, x_b) -> F | (F, inlier_mask)``;
 - run-level baselines (eval and triage only; :mod:`fviz.run.config` resolves them on the selection):
@@ -19,6 +21,7 @@ from typing import Callable
 from fviz.errors import FvizError
 from fviz.estimators.base import EstimateFn
 from fviz.estimators.classical import MIN_MATCHES, RobustConfig, classical
+from fviz.estimators.external import METHODS as EXTERNAL, external
 
 
 def _deep(spec: str, cfg: RobustConfig) -> EstimateFn:
@@ -35,6 +38,7 @@ def _ahead(spec: str, cfg: RobustConfig) -> EstimateFn:
 
 BUILTINS: dict[str, Callable[[str, RobustConfig], EstimateFn]] = {
     **{name: (lambda spec, cfg: classical(spec, cfg)) for name in MIN_MATCHES},
+    **dict.fromkeys(EXTERNAL, external),  # poselib / pycolmap load on the first estimate
     "deep": _deep,
     "ahead": _ahead,
 }
