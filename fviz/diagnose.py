@@ -18,7 +18,7 @@ STATIC_PX = 0.5  # a match moving less than this is static (identical images: ev
 MIN_FIT = 8  # fewer inliers than this: no homography is fitted
 FOCAL_PROBE_PX = 0.5
 FOCAL_PROBE_RUNS = 3
-FOCAL_STABLE = 0.1
+FOCAL_STABLE = 0.25
 
 
 def homography_fraction(x_a: np.ndarray, x_b: np.ndarray) -> float:

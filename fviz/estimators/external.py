@@ -106,7 +106,8 @@ def external(name: str, cfg: RobustConfig = RobustConfig()):
 
 def two_view_configuration(pair, x_a: np.ndarray, x_b: np.ndarray, seed: int = 0) -> str:
     """COLMAP's two-view configuration of the matches, lower case (``planar``, ``uncalibrated``, ...),
-    with the pair's cameras and COLMAP's default options (4 px, seeded)."""
+    with the pair's cameras and COLMAP's default options (4 px, seeded), the relative pose computed so that
+    a plane seen with parallax is ``planar`` and one without (pure rotation) ``panoramic``."""
     import pycolmap
 
     if len(x_a) < MIN_MATCHES["colmap"]:
@@ -116,6 +117,7 @@ def two_view_configuration(pair, x_a: np.ndarray, x_b: np.ndarray, seed: int = 0
     cam_a.has_prior_focal_length = cam_b.has_prior_focal_length = True  # K is known: COLMAP's calibrated path
     opt = pycolmap.TwoViewGeometryOptions()
     opt.ransac.random_seed = seed
+    opt.compute_relative_pose = True  # resolves planar_or_panoramic into planar or panoramic
     idx = np.repeat(np.arange(len(x_a), dtype=np.uint32)[:, None], 2, axis=1)
     geom = pycolmap.estimate_two_view_geometry(cam_a, np.asarray(x_a, np.float64), cam_b, np.asarray(x_b, np.float64),
                                                idx, opt)
