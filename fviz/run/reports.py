@@ -197,7 +197,7 @@ def summary_markdown(config: RunConfig, stats: _Stats) -> str:
             vals = [v.mean(), np.median(v), *(np.percentile(v, p) for p in PERCENTILES)] if len(v) else [math.nan] * (2 + len(PERCENTILES))
             lines.append(f"| {_display(est)} | {stats.pairs - stats.failed.get(est, 0)} | {stats.failed.get(est, 0)} | "
                          + " | ".join(_fmt(x) for x in vals) + " |")
-    lines += ["", *time_markdown(stats, ests), "", *precision_markdown(stats)]
+    lines += ["", *time_markdown(stats, ests), "", *precision_markdown(stats), *sweep_markdown(config, stats)]
     lines += [
         "",
         "## Paper-style table",
@@ -247,6 +247,50 @@ def precision_markdown(stats: _Stats) -> list[str]:
     for key, v in stats.precision.items():
         v = np.asarray(v)
         lines.append(f"| {key} | {_fmt(float(v.mean()))} | {_fmt(float(np.median(v)))} |")
+    return lines
+
+
+def sweep_curves(config: RunConfig, stats: _Stats) -> dict[str, dict[str, Any]]:
+    """Per swept estimator: {threshold text: (display name, standard figures)} in the order run, the per-pair
+    oracle's name, and the threshold best over the run by AUC@10 (chosen with the ground truth: an oracle too)."""
+    from fviz.estimators.registry import display_names
+    from fviz.estimators.sweep import ORACLE, split_threshold
+
+    figures = standard_figures(stats.per_pair, list(stats.order))
+    out: dict[str, dict[str, Any]] = {}
+    for spec, name in zip(config.options.names, display_names(config.options.names)):
+        base, th = split_threshold(spec)
+        if th is None or name not in figures:
+            continue
+        entry = out.setdefault(base, {"curve": {}, "oracle": None, "best": None})
+        if th.startswith(ORACLE):
+            entry["oracle"] = name
+        else:
+            entry["curve"][th] = (name, figures[name])
+    for entry in out.values():
+        if entry["curve"]:
+            entry["best"] = max(entry["curve"], key=lambda t: (entry["curve"][t][1]["pose_auc"].get("10", -1), -float(t)))
+    return out
+
+
+def sweep_markdown(config: RunConfig, stats: _Stats) -> list[str]:
+    curves = sweep_curves(config, stats)
+    if not curves:
+        return []
+    lines = ["", "## Threshold sweep", "",
+             "Each robust estimator at every threshold (px, in its own unit: see README's estimator table). *best over "
+             "the run*: the threshold of the highest AUC@10°; `-th-oracle`: per pair, the threshold whose F is closest "
+             "to the ground truth. Both are chosen with the labels (oracles, as glue-factory's `ransac_th=-1`).", "",
+             "| estimator | threshold px | AUC@10° | median SED px | |", "|---|---|---|---|---|"]
+    figures = standard_figures(stats.per_pair, list(stats.order))
+    for base, entry in curves.items():
+        for th, (name, f) in entry["curve"].items():
+            lines.append(f"| {base} | {th} | {_fmt(f['pose_auc'].get('10', math.nan))} | {_fmt(f['sed_median'])} | "
+                         f"{'*best over the run* (oracle)' if th == entry['best'] else ''} |")
+        if entry["oracle"]:
+            f = figures[entry["oracle"]]
+            lines.append(f"| {base} | per-pair oracle | {_fmt(f['pose_auc'].get('10', math.nan))} | {_fmt(f['sed_median'])} "
+                         "| oracle |")
     return lines
 
 
@@ -329,6 +373,8 @@ def summary_document(config: RunConfig, stats: _Stats) -> dict[str, Any]:
                            for k, v in f.items()} for e, f in figures.items()},
         "seconds": {e: {k: clean(v) for k, v in t.items()} for e, t in time_table(stats, ests).items()},
         "match_precision": {k: clean(float(np.mean(v))) for k, v in stats.precision.items()},
+        "threshold_sweep": {b: {"best_over_run_px": e["best"], "oracle": e["oracle"], "names": {t: n for t, (n, _) in e["curve"].items()}}
+                            for b, e in sweep_curves(config, stats).items()},
     }
 
 
