@@ -432,6 +432,11 @@ def triage_markdown(config, ranked: list[Ranked], top: int, by: str, metric: str
         f"of the inliers; small-baseline: |t| < {SMALL_BASELINE_M} m or K_b R K_a^-1 explains >= {ROTATION_FRACTION:.0%} "
         f"of the matches within {ROTATION_PX:g} px; degenerate: >= {DEGENERATE_FRACTION:.0%} of the matches move < "
         f"{STATIC_PX:g} px.",
+        f"matcher / estimator: `{by}` failed (pose error > {FAIL_POSE_DEG:g} deg or median SED > {FAIL_SED_PX:g} px) and "
+        f"fewer than {MATCHER_MIN_PRECISION:.0%} of the matches lie within 2 px of F_gt or fewer than {MATCHER_MIN_CORRECT} "
+        f"within 1 px (matcher), or not (estimator); colmap-*: COLMAP's two-view configuration of the matches; "
+        f"focal-implausible: Bougnoux focals of `{by}`'s F imaginary or more than {FOCAL_OFF:g}x off K's, where the "
+        "matches determine them.",
         "",
         f"| rank | pair | {metric} | pose_err_deg | tags |",
         "|---|---|---|---|---|",
