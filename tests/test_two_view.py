@@ -63,7 +63,7 @@ def general():
     """Exact projections of points in a box seen from two cameras in general position (verging, raised)."""
     rng = np.random.default_rng(1)
     X = rng.uniform([-4, -2, 6], [4, 2, 14], size=(400, 3))
-    R, t = _rotation([10.0, -25.0, 5.0]), np.array([3.0, 1.5, 1.0])
+    R, t = _rotation([20.0, -35.0, 10.0]), np.array([5.0, 3.0, 2.0])
     proj = lambda P: (P @ K.T)[:, :2] / P[:, 2:]  # noqa: E731
     blank = np.zeros((376, 1241), np.uint8)
     return _pair(blank, blank, R, t, (proj(X), proj(X @ R.T + t)))
