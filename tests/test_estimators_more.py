@@ -15,7 +15,7 @@ from fviz.geometry import rotation_error_deg, translation_error_deg
 from fviz.geometry import symmetric_epipolar_distance as sed
 
 NEW = [*USAC_FLAGS, *METHODS]
-SAMPSON = [n for n in NEW if n != "poselib-E"]  # --threshold is their own F's Sampson distance
+SAMPSON = ["magsac", *(n for n in NEW if n != "poselib-E")]  # --threshold: their own F's Sampson distance
 
 
 def _matched(pair):
