@@ -56,20 +56,23 @@ def focals(pair, F: np.ndarray) -> list[float]:
 
 
 def focal_observable(pair, x_a: np.ndarray, x_b: np.ndarray) -> bool:
-    """Whether these matches determine the focal lengths through F: the matches moved onto F_gt's epipolar
-    lines (``cv2.correctMatches``), FOCAL_PROBE_PX of Gaussian noise added (FOCAL_PROBE_RUNS seeded draws), an
-    8-point F fitted to them gives Bougnoux focals within FOCAL_STABLE of K's every time. False on rectified
+    """Whether these matches determine the focal lengths through F: moved onto F_gt's epipolar lines (x_b to
+    the nearest point of F_gt x_a), with FOCAL_PROBE_PX of Gaussian noise added (FOCAL_PROBE_RUNS seeded draws),
+    an 8-point F fitted to them gives Bougnoux focals within FOCAL_STABLE of K's every time. False on rectified
     stereo and on forward motion, where the formula is (nearly) singular and any estimate's focals say nothing."""
     import cv2
+
+    from fviz.geometry import homogeneous, lines_in_b
 
     if len(x_a) < MIN_FIT:
         return False
     x_a, x_b = x_a[:FOCAL_PROBE_POINTS], x_b[:FOCAL_PROBE_POINTS]  # the best matches: enough for an 8-point F
     f_true = np.array([pair.K_a[0, 0], pair.K_b[0, 0]])
-    ca, cb = cv2.correctMatches(pair.F_gt, x_a[None].astype(np.float64), x_b[None].astype(np.float64))
+    l_b = lines_in_b(pair.F_gt, x_a)  # unit normals: x_b moved to the foot of its perpendicular on F_gt x_a
+    on_line = x_b - (np.einsum("ni,ni->n", l_b, homogeneous(x_b)))[:, None] * l_b[:, :2]
     rng = np.random.default_rng(0)
     for _ in range(FOCAL_PROBE_RUNS):
-        na, nb = (c[0] + rng.normal(0, FOCAL_PROBE_PX, c[0].shape) for c in (ca, cb))
+        na, nb = (c + rng.normal(0, FOCAL_PROBE_PX, c.shape) for c in (np.asarray(x_a, np.float64), on_line))
         F, _ = cv2.findFundamentalMat(na, nb, cv2.FM_8POINT)
         f = np.array(focals(pair, F[:3])) if F is not None else np.full(2, np.nan)
         if not np.all(np.abs(f / f_true - 1) < FOCAL_STABLE):  # NaN (imaginary) fails too
