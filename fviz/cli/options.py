@@ -79,7 +79,7 @@ Features = Annotated[str, typer.Option("--features", help="sift, orb or akaze.")
 MaxKeypoints = Annotated[int, typer.Option("--max-keypoints", help="Keypoints per image.")]
 Ratio = Annotated[float, typer.Option("--ratio", help="Lowe ratio test.", callback=fraction("--ratio"))]
 Mutual = Annotated[bool, typer.Option("--mutual/--no-mutual", help="Keep only mutual nearest neighbours.")]
-Threshold = Annotated[str, typer.Option("--threshold", help="Inlier threshold of robust estimators (px); 'sweep' (0.25,0.5,1,2,4) or a list 0.5,1,2 runs each robust estimator at every value plus its per-pair oracle (NAME@T, NAME@oracle).", callback=check_threshold)]
+Threshold = Annotated[str, typer.Option("--threshold", metavar="PX|LIST|sweep", help="Inlier threshold of robust estimators (px); 'sweep' (0.25,0.5,1,2,4) or a list 0.5,1,2 runs each robust estimator at every value plus its per-pair oracle (NAME@T, NAME@oracle).", callback=check_threshold)]
 
 
 
