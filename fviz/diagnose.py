@@ -16,10 +16,10 @@ HOMOGRAPHY_PX = 2.0
 ROTATION_PX = 2.0
 STATIC_PX = 0.5  # a match moving less than this is static (identical images: every match)
 MIN_FIT = 8  # fewer inliers than this: no homography is fitted
-FOCAL_PROBE_PX = 0.5
+FOCAL_PROBE_PX = 0.5  # focal_observable: noise added to exact matches, draws, matches used,
 FOCAL_PROBE_RUNS = 3
 FOCAL_PROBE_POINTS = 300
-FOCAL_STABLE = 0.25
+FOCAL_STABLE = 0.25  # and the largest relative focal error that still counts as determined
 
 
 def homography_fraction(x_a: np.ndarray, x_b: np.ndarray) -> float:
@@ -105,7 +105,7 @@ def diagnose(pair, result) -> dict[str, Any]:
     """Evidence for the tags of one evaluated pair (JSON-ready; NaN where undefined), and the
     straight-ahead baseline's median SED on the evaluation matches (``ahead_sed_median``), so that
     triage can compare every run with it whether or not ``-e ahead`` was given; COLMAP's two-view label of the
-    matches (``two_view``), whether this pair's motion determines focal lengths from F (``focal_observable``)
+    matches (``two_view``), whether the evaluation matches determine focal lengths through F (``focal_observable``)
     and, per estimator, its Bougnoux focals (``focals``)."""
     from fviz.estimators.baselines import ahead
     from fviz.geometry import symmetric_epipolar_distance
