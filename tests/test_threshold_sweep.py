@@ -70,6 +70,7 @@ def test_eval_sweep_reports_the_curve_and_the_oracles(kitti_root, tmp_path):
     sweep = doc["threshold_sweep"]["usac-prosac"]
     auc = {t: doc["estimators"][n]["pose_auc"]["10"] for t, n in sweep["names"].items()}
     assert sweep["best_over_run_px"] == max(auc, key=lambda t: (auc[t], -float(t)))
+    assert sum(sweep["oracle_chose"].values()) == doc["pairs"] > 0  # each pair's oracle F is one of the grid's
     md = (out / "summary.md").read_text()
     assert "## Threshold sweep" in md and "| usac-prosac | per-pair oracle |" in md and "*best over the run*" in md
 

@@ -65,6 +65,7 @@ class _Stats:
         self.order: dict[str, None] = {}
         self.per_pair: dict[str, array] = {}
         self.precision: dict[str, array] = {}  # match precision per pair (fviz.geometry.precision)
+        self.oracle_choice: dict[str, dict[str, int]] = {}  # sweep oracle -> {the grid entry it chose: pairs}
 
     def add(self, rec: dict[str, Any], rows: list[dict[str, Any]]) -> None:
         self.pairs += 1
@@ -72,6 +73,7 @@ class _Stats:
         for key, v in ((rec.get("result") or {}).get("match_precision") or {}).items():
             if v is not None:
                 self.precision.setdefault(key, array("d")).append(float(v))
+        self._add_oracle_choices((rec.get("result") or {}).get("estimators", []))
         for row in rows:
             est = row["estimator"]
             self.order[est] = None
@@ -84,6 +86,18 @@ class _Stats:
                 v = row.get(key)
                 if isinstance(v, float) and math.isfinite(v):
                     self.values.setdefault((est, key), array("d")).append(v)
+
+    def _add_oracle_choices(self, ests: list[dict[str, Any]]) -> None:
+        """Which threshold each sweep oracle chose on a pair: the grid entry with the very same F."""
+        from fviz.estimators.sweep import ORACLE_SUFFIX
+
+        for e in ests:
+            if e["name"].endswith(ORACLE_SUFFIX) and e.get("F") is not None:
+                prefix = e["name"][: -len(ORACLE_SUFFIX)] + "-th"
+                same = next((o["name"] for o in ests if o["name"].startswith(prefix) and o is not e and o.get("F") == e["F"]), None)
+                if same is not None:
+                    counts = self.oracle_choice.setdefault(e["name"], {})
+                    counts[same] = counts.get(same, 0) + 1
 
     def get(self, est: str, key: str) -> np.ndarray:
         return np.asarray(self.values.get((est, key), []), dtype=np.float64)
@@ -289,8 +303,10 @@ def sweep_markdown(config: RunConfig, stats: _Stats) -> list[str]:
                          f"{'*best over the run* (oracle)' if th == entry['best'] else ''} |")
         if entry["oracle"]:
             f = figures[entry["oracle"]]
+            chosen = stats.oracle_choice.get(entry["oracle"], {})
+            picks = ", ".join(f"{th} px {chosen[n]}" for th, (n, _) in entry["curve"].items() if chosen.get(n))
             lines.append(f"| {base} | per-pair oracle | {_fmt(f['pose_auc'].get('10', math.nan))} | {_fmt(f['sed_median'])} "
-                         "| oracle |")
+                         f"| oracle; chosen per pair: {picks or '-'} |")
     return lines
 
 
@@ -373,7 +389,10 @@ def summary_document(config: RunConfig, stats: _Stats) -> dict[str, Any]:
                            for k, v in f.items()} for e, f in figures.items()},
         "seconds": {e: {k: clean(v) for k, v in t.items()} for e, t in time_table(stats, ests).items()},
         "match_precision": {k: clean(float(np.mean(v))) for k, v in stats.precision.items()},
-        "threshold_sweep": {b: {"best_over_run_px": e["best"], "oracle": e["oracle"], "names": {t: n for t, (n, _) in e["curve"].items()}}
+        "threshold_sweep": {b: {"best_over_run_px": e["best"], "oracle": e["oracle"],
+                                "names": {t: n for t, (n, _) in e["curve"].items()},
+                                "oracle_chose": {t: stats.oracle_choice.get(e["oracle"], {}).get(n, 0)
+                                                 for t, (n, _) in e["curve"].items()}}
                             for b, e in sweep_curves(config, stats).items()},
     }
 
