@@ -2,8 +2,8 @@
 
 Estimators (same contract as :mod:`fviz.estimators.classical`: (pair, x_a, x_b) -> (F, inlier_mask)):
 
-- ``poselib``: PoseLib's LO-RANSAC fundamental matrix (7-point samples, MSAC score, local optimisation and a
-  final Cauchy-robust refinement of the Sampson error). ``--threshold`` is its ``max_epipolar_error``: the
+- ``poselib``: PoseLib's LO-RANSAC fundamental matrix (7-point samples, MSAC score, local optimisation, then
+  a non-linear refinement of the Sampson error, PoseLib's default bundle options). ``--threshold`` is its ``max_epipolar_error``: the
   **Sampson distance in px**, the same test as OpenCV's USAC / MAGSAC++;
 - ``poselib-E``: PoseLib's calibrated relative pose (5-point LO-RANSAC on the pair's K_a, K_b), then
   F = K_b^-T [t]x R K_a^-1. ``--threshold`` is again in **px**: PoseLib divides it by the mean focal length
