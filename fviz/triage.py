@@ -45,7 +45,8 @@ Pair tags (thresholds are the constants below and in :mod:`fviz.diagnose`):
 - ``matcher`` / ``estimator``: the ranked estimator failed on the pair (an error, ``pose_err_deg`` >
   FAIL_POSE_DEG or ``sed_median`` > FAIL_SED_PX) and the matches were (``matcher``) or were not (``estimator``)
   to blame: fewer than MATCHER_MIN_PRECISION of them within 2 px of F_gt, or fewer than MATCHER_MIN_CORRECT
-  within 1 px (``match_precision``, computed before any estimator);
+  within 1 px (``match_precision``, computed before any estimator); not on a ``gt-suspect`` pair, where both
+  are measured against a doubtful ground truth;
 - ``colmap-planar``, ``colmap-panoramic``, ``colmap-planar-or-panoramic``, ``colmap-watermark``,
   ``colmap-degenerate``: COLMAP's two-view configuration of the matches (pycolmap, with the pair's cameras);
 - ``focal-implausible``: the ranked estimator's F gives imaginary focal lengths (Bougnoux, PoseLib) or ones
@@ -149,7 +150,8 @@ def tag_pair(rec: dict[str, Any], by: str) -> list[tuple[str, str]]:
     if static >= DEGENERATE_FRACTION:
         out.append(("degenerate", f"{static:.0%} of the matches move < {STATIC_PX:g} px (identical images?): any F "
                     "through the points fits, residuals and inlier counts mean nothing"))
-    return out + blame_tags(rec, by, metrics) + two_view_tags(rec, by)
+    suspect = any(t == "gt-suspect" for t, _ in out)  # judged against doubtful labels, neither is to blame
+    return out + ([] if suspect else blame_tags(rec, by, metrics)) + two_view_tags(rec, by)
 
 
 def blame_tags(rec: dict[str, Any], by: str, metrics: dict[str, Any]) -> list[tuple[str, str]]:
