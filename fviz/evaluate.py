@@ -254,5 +254,6 @@ def evaluate_pair(
         n_keypoints=(len(fa.keypoints), len(fb.keypoints)), n_matches=len(m), n_eval=int(eval_mask.sum()),
         timings={"features_s": t1 - t0, "matching_s": t2 - t1}, estimators=results, matches=m,
         eval_mask=eval_mask, notes=notes,
-        match_precision=match_precision(pair.K_a, pair.K_b, pair.R, pair.t, pair.F_gt, m.x_a, m.x_b),
+        match_precision={} if pair.F_gt is None else match_precision(pair.K_a, pair.K_b, pair.R, pair.t, pair.F_gt,
+                                                                     m.x_a, m.x_b),
     )
