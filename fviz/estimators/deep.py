@@ -1,7 +1,11 @@
 """Correspondence-free estimators: a network trained by ``fviz train`` regresses F from the two images.
 
-- ``deep``: the bundled model (``assets/fviz-deep.pt``, see ``assets/MANIFEST.json``), for stereo and
-  temporal pairs alike;
+- ``deep``: the bundled models (see ``assets/MANIFEST.json``), chosen by the pair's kind: stereo pairs
+  (two cameras of one rig at one time) go to ``assets/fviz-deep-stereo.pt``, every other pair to
+  ``assets/fviz-deep.pt``.  Why two: a rectified rig has one F, so a stereo network learns that rig's
+  lateral baseline, while a motion network must follow the car; trained on both kinds at once, one
+  network traded its temporal accuracy for a stereo F it did not reach (README, "The paper's experiment").
+  ``$FVIZ_WEIGHTS`` names one file for every pair instead;
 - ``deep:synthetic``: the model trained on synthetic scenes only (``assets/fviz-deep-synthetic.pt``
   once KITTI-trained weights take ``fviz-deep.pt``; until then the bundled model is that one);
 - ``deep:PATH``: any checkpoint or exported weights file.
@@ -21,6 +25,7 @@ WEIGHTS_ENV = "FVIZ_WEIGHTS"
 ASSETS = Path(__file__).resolve().parents[2] / "assets"
 BUNDLED = ASSETS / "fviz-deep.pt"
 SYNTHETIC = ASSETS / "fviz-deep-synthetic.pt"
+STEREO = ASSETS / "fviz-deep-stereo.pt"
 
 
 def bundled_weights() -> Path:
@@ -37,28 +42,48 @@ def named_weights(name: str) -> Path | None:
     return None
 
 
+def _models(path: str | Path | None, device: str) -> dict[str, object]:
+    """{pair kind or "": model} of a ``deep`` spec: the bundled pair for plain ``deep``, else one model."""
+    from fviz.models.weights import load_model
+
+    if path:
+        path = named_weights(str(path)) or Path(path)
+    elif WEIGHTS_ENV not in os.environ and STEREO.is_file():
+        return {"": load_model(bundled_weights(), device)[0], "stereo": load_model(STEREO, device)[0]}
+    else:
+        path = bundled_weights()
+    return {"": load_model(path, device)[0]}  # one-line errors naming the file (missing, a folder, not a model)
+
+
 def deep_estimator(path: str | Path | None = None, device: str = "cpu"):
     """An estimator (pair, x_a, x_b) -> F that ignores the matches."""
     from fviz.models.predict import predict_F
-    from fviz.models.weights import load_model
 
-    path = named_weights(str(path)) or Path(path) if path else bundled_weights()
-    model, _ = load_model(path, device)  # one-line errors naming the file (missing, a folder, not a model)
+    models = _models(path, device)
 
     def estimate(pair, x_a, x_b):
+        model = models.get(pair.id.kind, models[""])
         return predict_F(model, pair.image_a, pair.image_b)
 
     return estimate
 
 
 def deep_batch_predictor(path: str | Path | None = None, device: str = "cpu"):
-    """``predict(image_pairs) -> [F]``: the model of :func:`deep_estimator` run on many pairs at once on
-    ``device`` (what ``fviz eval`` does on a GPU)."""
+    """``predict(image_pairs, kinds) -> [F]``: the model(s) of :func:`deep_estimator` run on many pairs at
+    once on ``device`` (what ``fviz eval`` does on a GPU); ``kinds``: each pair's kind (None: all general)."""
     from fviz.models.predict import predict_F_batch
-    from fviz.train.checkpoint import load_model
 
-    path = Path(path) if path else bundled_weights()
-    if not path.is_file():
+    if path and not Path(path).is_file() and named_weights(str(path)) is None:
         raise FvizError(f"--estimator deep:{path}: no such file")
-    model, _ = load_model(path, device)
-    return lambda image_pairs: predict_F_batch(model, image_pairs)
+    models = _models(path, device)
+
+    def predict(image_pairs, kinds=None):
+        kinds = [k if k in models else "" for k in (kinds or [""] * len(image_pairs))]
+        out: list = [None] * len(image_pairs)
+        for kind, model in models.items():
+            idx = [i for i, k in enumerate(kinds) if k == kind]
+            for i, F in zip(idx, predict_F_batch(model, [image_pairs[i] for i in idx])):
+                out[i] = F
+        return out
+
+    return predict

@@ -237,23 +237,24 @@ class DeepBatches:
         for i, _ in pairs:
             self.results[i] = {}
         ok = [(i, im) for (i, _), im in zip(pairs, loaded) if not isinstance(im, str)]
+        kinds = {i: pid.kind for i, pid in pairs}
         for (i, _), im in zip(pairs, loaded):
             if isinstance(im, str):
                 self.results[i] = {name: (im, 0.0) for name in self.predictors}
         for name, predict in self.predictors.items():
             t0 = time.perf_counter()
             try:
-                Fs = predict([im for _, im in ok])
+                Fs = predict([im for _, im in ok], [kinds[i] for i, _ in ok])
             except Exception:  # one pair's failure (e.g. ETR of F33 = 0) must not fail the batch
-                Fs = [self._one(predict, im) for _, im in ok]
+                Fs = [self._one(predict, im, kinds[i]) for i, im in ok]
             share = (time.perf_counter() - t0) / max(1, len(ok))
             for (i, _), F in zip(ok, Fs):
                 self.results[i][name] = (F, share)
 
     @staticmethod
-    def _one(predict, images):
+    def _one(predict, images, kind):
         try:
-            return predict([images])[0]
+            return predict([images], [kind])[0]
         except Exception as exc:
             return _message(exc)
 
