@@ -10,7 +10,7 @@ from typing import Any, Callable
 import numpy as np
 
 from fviz.estimators.baselines import constant_estimator, mean_fundamental
-from fviz.estimators.options import EstimatorOptions
+from fviz.estimators.options import MAX_KEYPOINTS, EstimatorOptions
 from fviz.estimators.registry import MEAN_PREFIX, ORACLE_MEAN, is_run_baseline
 from fviz.data.kitti import PAIR_KINDS
 from fviz.data.pair import PairId
@@ -28,6 +28,7 @@ RRD_FILE = "eval.rrd"
 PAYLOAD_DIR = "pairs"
 
 SUMMARY_JSON = "summary.json"
+ESTIMATOR_TIMEOUT_S = 600.0  # default --estimator-timeout: one estimator on one pair
 MIN_PAIRS_PER_WORKER = 4  # fewer pairs than this per process: starting one costs more than it saves
 CACHE_ITEMS = 16  # features kept per worker, plus 2 per frame of the largest step (frame-major order)
 
@@ -90,8 +91,10 @@ class Selection:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "Selection":
-        tup = lambda v: None if v is None else tuple(v)  # noqa: E731
-        return cls(**{**d, **{k: tup(d.get(k)) for k in ("kinds", "steps", "cams", "frames", "seeds")}})
+        """Each field checked against its type (:func:`fviz.run.schema.fields_of`)."""
+        from fviz.run.schema import fields_of
+
+        return cls(**fields_of(d, cls, "selection"))
 
     def source(self) -> "KittiSource | SyntheticSource":
         return SyntheticSource(self) if self.synthetic else KittiSource(self)
@@ -254,6 +257,7 @@ class RunConfig:
     full: bool = False
     shard: tuple[int, int] | None = None
     baseline_F: dict[str, tuple[float, ...]] = field(default_factory=dict)  # spec -> 9 numbers, set by :func:`prepare`
+    estimator_timeout: float = ESTIMATOR_TIMEOUT_S  # seconds one estimator may take on one pair
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
@@ -262,12 +266,29 @@ class RunConfig:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "RunConfig":
-        opts = dict(d["options"], names=tuple(d["options"]["names"]))
-        return cls(
-            selection=Selection.from_dict(d["selection"]), options=EstimatorOptions(**opts), norm=d["norm"],
-            eval_threshold=d["eval_threshold"], full=d["full"], shard=None if d["shard"] is None else tuple(d["shard"]),
-            baseline_F={k: tuple(v) for k, v in (d.get("baseline_F") or {}).items()},
-        )
+        """run.json back to a configuration: every field checked against its type (a one-line FvizError
+        naming the field), then the selection, norm and thresholds as a run's flags are (:func:`check`)."""
+        from fviz.run.schema import convert
+
+        config = convert(d, cls, "")
+        if config.shard is not None and not 0 <= config.shard[0] < config.shard[1]:
+            raise FvizError(f"'shard' {list(config.shard)}: need 0 <= i < n")
+        if any(len(v) != 9 for v in config.baseline_F.values()):
+            raise FvizError("'baseline_F': 9 numbers per baseline expected")
+        check(config)
+        return config
+
+    def fingerprint(self, ref: dict[str, Any]) -> str:
+        """What made a record of the pair ``ref``: the settings every estimator's result depends on (feature
+        and robust options, norm, evaluation threshold) and the pair itself. A record whose fingerprint
+        differs was made by another configuration and is never reused."""
+        import hashlib
+        import json
+
+        d = self.comparable()
+        settings = {"options": d["options"], "norm": d["norm"], "eval_threshold": float(d["eval_threshold"]),
+                    "pair": {k: v for k, v in ref.items() if k != "name"}}
+        return hashlib.sha256(json.dumps(settings, sort_keys=True).encode()).hexdigest()[:20]
 
     def estimator_names(self) -> list[str]:
         """Display names, in order (``gt`` not included)."""
@@ -286,11 +307,11 @@ class RunConfig:
 
     def comparable(self) -> dict[str, Any]:
         """What must agree for two runs' records to be mixed (resume, merge): all but the estimator names
-        (pairs lacking one are evaluated again), the baselines' F (fixed by names and selection), the shard
-        and ``full`` (which only adds payload files)."""
+        (pairs lacking one are evaluated again), the baselines' F (fixed by names and selection), the shard,
+        ``full`` (which only adds payload files) and the estimators' time limit."""
         d = self.to_dict()
         d["options"] = {k: v for k, v in d["options"].items() if k != "names"}
-        for key in ("shard", "full", "baseline_F"):
+        for key in ("shard", "full", "baseline_F", "estimator_timeout"):
             d.pop(key)
         return d
 
@@ -374,15 +395,39 @@ def baseline_fundamental(sel: Selection, spec: str) -> np.ndarray:
     return mean_fundamental(all_gt())
 
 
-def prepare(config: RunConfig) -> RunConfig:
-    """Validate the estimators and the selection (one-line errors) and fix the constant-F baselines
-    on the whole selection (not the shard: shards then merge to one run's results)."""
+def check(config: RunConfig) -> None:
+    """One-line errors for settings out of range (the flags' own checks, again for a run.json)."""
+    import math
+
     from fviz.geometry import NORMS
 
+    o = config.options
     if config.norm not in NORMS:
         raise FvizError(f"--norm {config.norm!r}: choose one of {', '.join(NORMS)}")
     if config.eval_threshold <= 0:
         raise FvizError(f"--eval-threshold {config.eval_threshold}: must be > 0")
+    if not (config.estimator_timeout > 0 and math.isfinite(config.estimator_timeout)):
+        raise FvizError(f"--estimator-timeout {config.estimator_timeout}: must be a number of seconds > 0")
+    check_options(o)
+
+
+def check_options(o: EstimatorOptions) -> None:
+    """The ranges of the estimator options (a keypoint count OpenCV accepts, a confidence in (0, 1], ...)."""
+    rules = (("--max-keypoints", o.max_keypoints, 1 <= o.max_keypoints <= MAX_KEYPOINTS, f"must be 1 .. {MAX_KEYPOINTS}"),
+             ("--ratio", o.ratio, 0 < o.ratio <= 1, "must be a number in (0, 1]"),
+             ("--threshold", o.threshold, o.threshold > 0, "must be a number > 0"),
+             ("--confidence", o.confidence, 0 < o.confidence <= 1, "must be a number in (0, 1]"),
+             ("--max-iters", o.max_iters, 1 <= o.max_iters <= 2**31 - 1, "must be 1 .. 2147483647"),
+             ("--seed", o.seed, 0 <= o.seed <= 2**31 - 1, "must be 0 .. 2147483647"))
+    for flag, value, ok, rule in rules:
+        if not ok:
+            raise FvizError(f"{flag} {value}: {rule}")
+
+
+def prepare(config: RunConfig) -> RunConfig:
+    """Validate the estimators and the selection (one-line errors) and fix the constant-F baselines
+    on the whole selection (not the shard: shards then merge to one run's results)."""
+    check(config)
     names = config.options.names
     if len(set(names)) != len(names):
         raise FvizError(f"--estimator: repeated name in {', '.join(names)}")
