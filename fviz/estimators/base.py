@@ -85,7 +85,8 @@ def run_estimator(name: str, fn: EstimateFn, pair, x_a: np.ndarray, x_b: np.ndar
     if kind == "timeout":
         return Estimate(name, None, None, seconds, f"timed out after {timeout:g} s (--estimator-timeout)")
     if kind == "raised":
-        what = f"{type(out).__name__}: {out}" if not isinstance(out, SystemExit) else f"SystemExit: called exit({out.code!r})"
+        text = f"called exit({out.code!r})" if isinstance(out, SystemExit) else str(out) or "raised with no message"
+        what = f"{type(out).__name__}: {text}"
         return Estimate(name, None, None, seconds, what)
     try:
         F, mask = _interpret(out, len(x_a))

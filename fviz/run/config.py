@@ -35,6 +35,28 @@ CACHE_ITEMS = 16  # features kept per worker, plus 2 per frame of the largest st
 # Columns of the CSV that are text or integers; every other column is a float.
 TEXT_COLUMNS = ("name", "source", "root", "sequence", "kind", "estimator", "norm", "error", "pair_error")
 INT_COLUMNS = ("index", "frame_a", "frame_b", "cam_a", "cam_b", "n_matches", "n_eval")
+ID_COLUMNS = ("index", "frame_a", "frame_b", "cam_a", "cam_b")  # integers that name a pair, not metrics
+
+
+def csv_number(row: dict[str, Any], column: str, where: str) -> float:
+    """The number in ``column`` of a metrics.csv row (NaN when empty or "nan"); FvizError naming ``where``
+    (file:line) and the column for any other text."""
+    text = row.get(column)
+    if text in (None, "", "nan", "NaN"):
+        return float("nan")
+    try:
+        return float(text)
+    except ValueError:
+        raise FvizError(f"{where}: column {column!r} holds {text[:30]!r}, not a number") from None
+
+
+def check_metric_column(metric: str, flag: str = "--metric") -> None:
+    """A one-line error when ``metric`` names a text or identity column of metrics.csv."""
+    if metric in TEXT_COLUMNS or metric in ID_COLUMNS:
+        raise FvizError(f"{flag} {metric}: a {'text' if metric in TEXT_COLUMNS else 'pair'} column, not a metric "
+                        "(e.g. sed_median, pose_err_deg, nsgd, inlier_ratio)")
+
+
 # Metrics summarised per estimator in summary.md (mean, median, p90, p99). f_dist is not one: see fviz.evaluate.
 SUMMARY_METRICS = ("sed_median", "sampson_median", "pose_err_deg", "rot_err_deg", "trans_err_deg", "nsgd",
                    "gt_inlier_ratio", "epi_abs", "epi_sqr", "inlier_ratio", "epipole_err_deg", "seconds")
@@ -112,6 +134,17 @@ def _range_text(r: tuple[int | None, int | None]) -> str:
     return f"{'' if r[0] is None else r[0]}:{'' if r[1] is None else r[1]}"
 
 
+_noted: set[str] = set()
+
+
+def _note_once(message: str) -> None:
+    import sys
+
+    if message not in _noted:
+        _noted.add(message)
+        print(message, file=sys.stderr)
+
+
 class KittiSource:
     """Pairs of one KITTI odometry sequence or raw drive."""
 
@@ -130,6 +163,13 @@ class KittiSource:
             self.ds.check_cam(cam)
         n = self.ds.frames_of(tuple(cams))
         start, end = self.sel.frames
+        if end is None:  # by default, only the frames every camera of the pairs has
+            common = min(self.ds.frame_counts[c] for c in cams)
+            if common < n:
+                short = min(cams, key=lambda c: self.ds.frame_counts[c])
+                _note_once(f"note: {self.ds.image_folder(short)} of {self.ds.name} has frames 0..{common - 1} only: "
+                           f"the {n - common} later frames of the other cameras are left out (select them with --frames)")
+                n = common
         start, end = 0 if start is None else start, n if end is None else end
         if not 0 <= start < end <= n:
             raise FvizError(f"--frames {_range_text(self.sel.frames)}: {self.ds.source} {self.ds.name} has frames 0..{n - 1} "
@@ -385,14 +425,24 @@ def baseline_selections(sel: Selection, spec: str) -> list[Selection]:
 def baseline_fundamental(sel: Selection, spec: str) -> np.ndarray:
     """The constant F of a run-level baseline (:func:`baseline_selections`)."""
     sels = baseline_selections(sel, spec)
+    skipped: list[str] = []
 
     def all_gt():
         for s in sels:
             source = s.source()
             for pid in source.pair_ids():
-                yield source.ground_truth(pid)
+                try:
+                    yield source.ground_truth(pid)
+                except FvizError as exc:  # a pair without F (no motion): the baseline is the mean of the others
+                    skipped.append(str(exc))
 
-    return mean_fundamental(all_gt())
+    F = mean_fundamental(all_gt())
+    if skipped:
+        import sys
+
+        print(f"note: --estimator {spec}: {len(skipped)} pairs without a ground-truth F left out of the mean "
+              f"(first: {skipped[0]})", file=sys.stderr)
+    return F
 
 
 def check(config: RunConfig) -> None:
