@@ -11,6 +11,7 @@ t -> t+k) need the odometry poses (camera 0 -> world, one 3x4 row per frame).
 
 from __future__ import annotations
 
+import errno
 import os
 import re
 from dataclasses import dataclass
@@ -58,6 +59,12 @@ def check_file(path: Path, what: str) -> Path:
     if path.is_dir():
         raise FvizError(f"{what} {path}: a folder, not a file")
     if not path.exists():
+        if path.is_symlink():
+            try:
+                os.stat(path)
+            except OSError as exc:
+                why = "a symlink loop" if exc.errno == errno.ELOOP else f"a symlink to the missing {os.readlink(path)}"
+                raise FvizError(f"{what} {path}: {why}") from None
         raise FvizError(f"missing {what}: {path}")
     return path
 
@@ -76,7 +83,10 @@ def read_image(path: Path) -> np.ndarray:
     check_file(path, "image")
     if not os.access(path, os.R_OK):
         raise FvizError(f"cannot read image {path} (permission denied)")
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    from fviz.quiet import native_stderr_silenced
+
+    with native_stderr_silenced():  # libpng's own "libpng error: ..." line: fviz's error says it
+        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if img is None or img.size == 0:
         raise FvizError(f"unreadable or corrupt image: {path}")
     if img.dtype != np.uint8:

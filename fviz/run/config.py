@@ -188,6 +188,9 @@ class KittiSource:
                     if frame + step < frames.stop:
                         ids.append(self.ds.pair_id(frame, kind, max(step, 1), self.sel.cams))
         if not ids:
+            if self.sel.frames == (None, None):
+                raise FvizError(f"--step {max(self.sel.steps)}: longer than the {len(frames)} frames of {self.ds.name} "
+                                f"({frames.start}..{frames.stop - 1}): no temporal pair fits")
             raise FvizError(f"--frames {_range_text(self.sel.frames)}: no pair fits in the range (step {max(self.sel.steps)})")
         return ids
 
@@ -436,7 +439,12 @@ def baseline_fundamental(sel: Selection, spec: str) -> np.ndarray:
                 except FvizError as exc:  # a pair without F (no motion): the baseline is the mean of the others
                     skipped.append(str(exc))
 
-    F = mean_fundamental(all_gt())
+    try:
+        F = mean_fundamental(all_gt())
+    except FvizError:
+        if not skipped:
+            raise
+        raise FvizError(f"--estimator {spec}: no pair of its selection has a ground-truth F ({skipped[0]})") from None
     if skipped:
         import sys
 

@@ -404,7 +404,7 @@ def _holder_text(fd: int) -> str:
         return ""
 
 
-def open_lock_file(path: Path, flags: int) -> int:
+def open_lock_file(path: Path, flags: int, flag: str = "--out-dir") -> int:
     """A descriptor of the lock file ``path``, never through a symlink, and only of a regular file
     (a planted link or FIFO is refused: the holder's line is written into what is opened)."""
     from fviz.atomic import describe_os_error
@@ -413,14 +413,14 @@ def open_lock_file(path: Path, flags: int) -> int:
         fd = os.open(path, flags | os.O_CLOEXEC | os.O_NOFOLLOW | os.O_NONBLOCK, 0o644)
     except OSError as exc:
         why = "it is a symlink" if exc.errno == errno.ELOOP else describe_os_error(exc)
-        raise FvizError(f"--out-dir {path.parent}: cannot lock it ({path.name}: {why}; fviz locks only a regular file)") from None
+        raise FvizError(f"{flag} {path.parent}: cannot lock it ({path.name}: {why}; fviz locks only a regular file)") from None
     if not stat.S_ISREG(os.fstat(fd).st_mode):
         os.close(fd)
-        raise FvizError(f"--out-dir {path.parent}: cannot lock it ({path.name} is not a regular file)")
+        raise FvizError(f"{flag} {path.parent}: cannot lock it ({path.name} is not a regular file)")
     return fd
 
 
-def _acquire(out_dir: Path) -> int:
+def _acquire(out_dir: Path, flag: str = "--out-dir") -> int:
     """A descriptor of ``out_dir/.fviz.lock`` holding an exclusive flock, the holder written into it."""
     import fcntl
     import shlex
@@ -430,13 +430,13 @@ def _acquire(out_dir: Path) -> int:
 
     path = out_dir / LOCK_FILE
     while True:
-        fd = open_lock_file(path, os.O_RDWR | os.O_CREAT)
+        fd = open_lock_file(path, os.O_RDWR | os.O_CREAT, flag)
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
             holder = _holder_text(fd) or "another process"
             os.close(fd)
-            raise FvizError(f"--out-dir {out_dir} is in use by {holder}: wait for it or choose another folder") from None
+            raise FvizError(f"{flag} {out_dir} is in use by {holder}: wait for it or choose another folder") from None
         try:
             if os.fstat(fd).st_ino == os.stat(path).st_ino:
                 break
@@ -445,7 +445,7 @@ def _acquire(out_dir: Path) -> int:
         os.close(fd)  # the holder removed the file between our open and flock: lock the new one
     stale = _holder_text(fd)
     if stale:
-        print(f"note: --out-dir {out_dir}: recovered the lock left by {stale}, which is no longer running",
+        print(f"note: {flag} {out_dir}: recovered the lock left by {stale}, which is no longer running",
               file=sys.stderr)
     holder = {"pid": os.getpid(), "host": socket.gethostname(), "command": shlex.join(["fviz", *sys.argv[1:]]),
               "since": datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M:%S UTC")}
@@ -473,8 +473,9 @@ def holder_of(out_dir: Path) -> str | None:
 
 
 @contextlib.contextmanager
-def locked(out_dir: str | Path) -> Iterator[None]:
-    """Hold the run folder while eval, triage or merge writes into it (re-entrant within a process).
+def locked(out_dir: str | Path, flag: str = "--out-dir") -> Iterator[None]:
+    """Hold the run folder while eval, triage, merge or train writes into it (re-entrant within a process;
+    ``flag`` names the folder in messages).
 
     Another fviz run into it exits with a one-line error naming the holder (pid, host, command, start
     time). The kernel releases the flock when the holder dies, however it dies: the next run takes over
@@ -486,7 +487,7 @@ def locked(out_dir: str | Path) -> Iterator[None]:
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        raise FvizError(f"--out-dir {out_dir}: cannot create it ({describe_os_error(exc)})") from None
+        raise FvizError(f"{flag} {out_dir}: cannot create it ({describe_os_error(exc)})") from None
     key = out_dir.resolve()
     if key in _held:
         _held[key] += 1
@@ -495,7 +496,7 @@ def locked(out_dir: str | Path) -> Iterator[None]:
         finally:
             _held[key] -= 1
         return
-    fd = _acquire(out_dir)
+    fd = _acquire(out_dir, flag)
     _held[key] = 1
     try:
         yield
