@@ -62,7 +62,7 @@ def convert(value: Any, tp, where: str) -> Any:
             raise _bad(value, tp, where)
         if origin is tuple and args and args[-1] is not Ellipsis:
             if len(value) != len(args):
-                raise FvizError(f"{where} has {len(value)} entries, expected {len(args)}")
+                raise FvizError(f"'{where}' has {len(value)} entries, expected {len(args)}")
             items = [convert(v, a, f"{where}[{i}]") for i, (v, a) in enumerate(zip(value, args))]
         else:
             item = args[0] if args else Any
@@ -80,14 +80,14 @@ def convert(value: Any, tp, where: str) -> Any:
 
 def _bad(value: Any, tp, where: str) -> FvizError:
     shown = repr(value) if len(repr(value)) <= 40 else repr(value)[:37] + "..."
-    return FvizError(f"{where} is {shown} ({type(value).__name__}), expected {_name(tp)}")
+    return FvizError(f"'{where}' is {shown} ({type(value).__name__}), expected {_name(tp)}")
 
 
 def fields_of(d: Any, cls, where: str) -> dict[str, Any]:
     """The keyword arguments of dataclass ``cls`` from the object ``d``: unknown keys and keys without a
     default that are missing are refused, each value checked against its annotation."""
     if not isinstance(d, dict):
-        raise FvizError(f"{where or 'the file'} is {type(d).__name__}, expected an object")
+        raise FvizError(f"{repr(where) if where else 'the file'} is {type(d).__name__}, expected an object")
     hints = typing.get_type_hints(cls)
     fields = {f.name: f for f in dataclasses.fields(cls)}
     prefix = f"{where}." if where else ""
@@ -100,5 +100,5 @@ def fields_of(d: Any, cls, where: str) -> dict[str, Any]:
             if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
                 raise FvizError(f"no '{prefix}{name}'")
             continue
-        out[name] = convert(d[name], hints[name], f"'{prefix}{name}'")
+        out[name] = convert(d[name], hints[name], f"{prefix}{name}")
     return out

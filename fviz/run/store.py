@@ -379,7 +379,13 @@ def read_config(out_dir: Path) -> RunConfig | None:
     if not path.is_file():
         return None
     try:
-        return RunConfig.from_dict(json.loads(path.read_text()))
+        doc = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise FvizError(f"{path}: not an fviz run configuration ({getattr(exc, 'strerror', None) or exc})") from None
+    try:
+        return RunConfig.from_dict(doc)
+    except FvizError as exc:  # a field of the wrong type or out of range, named
+        raise FvizError(f"{path}: {exc}") from None
     except (ValueError, KeyError, TypeError) as exc:
         raise FvizError(f"{path}: not an fviz run configuration ({exc})") from None
 
