@@ -17,7 +17,8 @@ import pytest
 from cli_util import assert_one_line_error, read_csv, run_fviz
 
 FAST = ("--max-keypoints", "400", "--workers", "1", "--no-progress")
-RUN = ("--synthetic", "--seeds", "0:3", "-e", "8point", "-e", "ransac", *FAST)
+N = 2  # pairs of the run
+RUN = ("--synthetic", "--seeds", f"0:{N}", "-e", "8point", "-e", "ransac", *FAST)
 VOLATILE = {"seconds"}  # timings differ between two evaluations of one pair
 
 
@@ -100,9 +101,10 @@ def test_results_lines_that_are_json_but_not_records_are_skipped_and_evaluated_a
     assert "results.jsonl:1: not a pair record" in r.stderr
     assert "1 evaluated now" in r.stderr
     assert stable(read_csv(run / "metrics.csv")) == stable(read_csv(finished / "metrics.csv"))
-    write_lines(run / "results.jsonl", [recs[0], *lines(run / "results.jsonl")[1:]])  # the bad line again, last
-    t = ok("triage", "--out-dir", run, *FAST)
-    assert "not a pair record" in t.stderr
+    if damage is _small_F:  # triage and its recording read the records too
+        write_lines(run / "results.jsonl", [recs[0], *lines(run / "results.jsonl")[1:]])  # the bad line again
+        t = ok("triage", "--out-dir", run, *FAST)
+        assert "not a pair record" in t.stderr
 
 
 def test_text_in_metrics_csv_is_one_line_in_compare_and_table(run):
@@ -147,7 +149,7 @@ def test_a_truncated_payload_of_a_full_run_is_evaluated_again(tmp_path):
 
 @pytest.fixture(scope="module")
 def foreign(tmp_path_factory):
-    """Records no seeds-0:3 stereo run with these settings may use: one of --max-keypoints 100 (same pair),
+    """Records no seeds-0:N stereo run with these settings may use: one of --max-keypoints 100 (same pair),
     one of seed 7 and one of a temporal pair."""
     base = tmp_path_factory.mktemp("foreign")
     ok("eval", "--synthetic", "--seeds", "0:1", "-e", "8point", "-e", "ransac", *FAST[2:], "--max-keypoints", "100",
@@ -161,10 +163,10 @@ def test_records_of_other_settings_or_pairs_are_ignored_and_counted(run, finishe
     with open(run / "results.jsonl", "a") as f:
         f.writelines(json.dumps(r) + "\n" for r in foreign)
     r = ok("eval", "--resume", "--out-dir", run, *FAST)
-    assert "3 already done, 0 evaluated now" in r.stderr
+    assert f"{N} already done, 0 evaluated now" in r.stderr
     assert "3 records ignored (1 made with other settings" in r.stderr and "2 of pairs outside" in r.stderr
     assert stable(read_csv(run / "metrics.csv")) == stable(read_csv(finished / "metrics.csv"))
-    assert json.loads((run / "summary.json").read_text())["pairs"] == 3
+    assert json.loads((run / "summary.json").read_text())["pairs"] == N
     t = ok("triage", "--out-dir", run, *FAST)
     assert "synthetic/7" not in (run / "triage.md").read_text()
     assert "records ignored" in t.stderr
@@ -175,13 +177,12 @@ def test_records_of_other_settings_or_pairs_are_ignored_and_counted(run, finishe
 
 def test_resume_after_run_json_is_deleted_recomputes_with_the_new_settings(run):
     (run / "run.json").unlink()
-    r = ok("eval", "--resume", "--synthetic", "--seeds", "0:3", "-e", "8point", "-e", "ransac", *FAST[2:],
-           "--max-keypoints", "100", "--eval-threshold", "5", "--out-dir", run)
-    assert "0 already done, 3 evaluated now" in r.stderr
+    r = ok("eval", "--resume", *RUN, "--max-keypoints", "100", "--eval-threshold", "5", "--out-dir", run)
+    assert f"0 already done, {N} evaluated now" in r.stderr
     rows = read_csv(run / "metrics.csv")
-    assert len(rows) == 9 and all(int(row["n_matches"]) <= 100 for row in rows)
-    assert all(json.loads(line)["result"]["eval_threshold_px"] == 5 for line in
-               (run / "results.jsonl").read_text().splitlines()[3:])
+    assert len(rows) == 3 * N and all(int(row["n_matches"]) <= 100 for row in rows)
+    assert all(rec["result"]["eval_threshold_px"] == 5 for rec in lines(run / "results.jsonl")[N:])
+    assert "(max 100" in (run / "summary.md").read_text()
 
 
 def test_a_hand_edited_run_json_recomputes_instead_of_mixing_settings(run):
@@ -189,7 +190,7 @@ def test_a_hand_edited_run_json_recomputes_instead_of_mixing_settings(run):
     doc["options"]["max_keypoints"] = 100
     (run / "run.json").write_text(json.dumps(doc))
     r = ok("eval", "--resume", "--out-dir", run, *FAST[2:])
-    assert "0 already done, 3 evaluated now" in r.stderr and "3 records ignored" in r.stderr
+    assert f"0 already done, {N} evaluated now" in r.stderr and f"{N} records ignored" in r.stderr
     assert all(int(row["n_matches"]) <= 100 for row in read_csv(run / "metrics.csv"))
 
 
@@ -198,19 +199,19 @@ def test_resume_with_other_estimators_adds_the_missing_ones_and_keeps_the_others
     r = ok("eval", "--resume", "--out-dir", run, "-e", "8point", "-e", "magsac", *FAST)
     assert "keeps the run's other estimators (ransac)" in r.stderr
     after = lines(run / "results.jsonl")
-    assert len(after) == 6
-    for old, new in zip(before, after[3:]):
+    assert len(after) == 2 * N
+    for old, new in zip(before, after[N:]):
         assert new["estimators"] == ["8point", "ransac", "magsac"]
         # the estimators the pair had are kept as they were, not computed again (same timings)
         assert new["result"]["estimators"][:3] == old["result"]["estimators"]
     rows = read_csv(run / "metrics.csv")
     assert {r["estimator"] for r in rows} == {"gt", "8point", "ransac", "magsac"}
-    ok("eval", "--synthetic", "--seeds", "0:3", "-e", "magsac", *FAST, "--out-dir", tmp_path / "magsac")
+    ok("eval", "--synthetic", "--seeds", f"0:{N}", "-e", "magsac", *FAST, "--out-dir", tmp_path / "magsac")
     fresh = [r for r in read_csv(tmp_path / "magsac" / "metrics.csv") if r["estimator"] == "magsac"]
     assert stable([r for r in rows if r["estimator"] == "magsac"]) == stable(fresh)
     again = ok("eval", "--resume", "--out-dir", run, "-e", "8point", "-e", "ransac", "-e", "magsac", *FAST)
-    assert "3 already done, 0 evaluated now" in again.stderr
-    assert len(lines(run / "results.jsonl")) == 6
+    assert f"{N} already done, 0 evaluated now" in again.stderr
+    assert len(lines(run / "results.jsonl")) == 2 * N
 
 
 # ------------------------------------------------------------------------------ data loss and security
