@@ -70,7 +70,7 @@ def tmp_path(path: str | Path) -> Path:
     import tempfile
 
     path = Path(path)
-    fd, name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    fd, name = tempfile.mkstemp(prefix=f".{path.name}.tmp", dir=path.parent)
     os.close(fd)
     return Path(name)
 

@@ -129,19 +129,11 @@ def test_a_corrupt_training_image_with_loader_workers_is_one_line(kitti_root, tm
     bad.unlink()
     bad.write_bytes(b"not a png")
     recipe = tmp_path / "k.toml"
-    recipe.write_text(f"""{TINY_MODEL_TOML}[data]
-source = "kitti-odometry"
-root = "{root}"
-sequences = ["02"]
-val_sequences = ["10"]
-cameras = [2]
-frames = [0, 4]
-[train]
-batch_size = 2
-max_steps = 2
-num_workers = 1
-out_dir = "{tmp_path / 'run'}"
-""")
+    recipe.write_text(
+        f'data = {{ source = "kitti-odometry", root = "{root}", sequences = ["02"], val_sequences = ["10"], '
+        f'cameras = [2], frames = [0, 4] }}\n'
+        f'train = {{ batch_size = 2, max_steps = 2, num_workers = 1, out_dir = "{tmp_path / "run"}" }}\n'
+        + TINY_MODEL_TOML)
     proc = run_fviz("train", recipe, timeout=600)
     assert only_error_line(proc) == f"error: unreadable or corrupt image: {bad}"
     assert "DataLoader" not in proc.stderr

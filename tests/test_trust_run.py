@@ -267,3 +267,15 @@ def test_merge_of_a_shard_still_running_is_refused(run, tmp_path):
         go.touch()
         holder.wait(timeout=60)
     ok("merge", run, "--out-dir", tmp_path / "merged")
+
+
+@pytest.mark.kitti
+def test_the_default_stereo_selection_uses_only_frames_every_camera_has(kitti_root, tmp_path):
+    """Sample sequence 00 has 50 frames of image_0 and one of image_1: the default run is that one pair, said so,
+    not 49 failures; with --frames the user's range stands (a missing image is that pair's recorded failure)."""
+    out = tmp_path / "run"
+    r = ok("eval", "--kitti-root", kitti_root, "--sequence", "00", "-e", "8point", *FAST, "--out-dir", out)
+    assert "image_1 of 00 has frames 0..0 only: the 49 later frames" in r.stderr
+    assert "1 pairs (0 already done, 1 evaluated now, 0 failed" in r.stderr
+    figures = json.loads((out / "summary.json").read_text())
+    assert figures["pairs"] == 1 and figures["estimators"]["gt"]["failed"] == 0

@@ -142,7 +142,7 @@ def _typed_problem(d: dict, keys: dict[str, Any], where: str) -> str | None:
         ok = kind(d[key]) if callable(kind) and not isinstance(kind, type) else (
             isinstance(d[key], kind) and not isinstance(d[key], bool))
         if not ok:
-            return f"'{where}{key}' is {type(d[key]).__name__} {str(d[key])[:20]!r}"
+            return f"'{where}{key}' is {type(d[key]).__name__}"
     return None
 
 
