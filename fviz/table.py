@@ -55,39 +55,46 @@ def paper_table(run_dir: str | Path) -> tuple[list[str], list[list[str]]]:
     for p in (csv_path, cfg_path):
         if not p.is_file():
             raise FvizError(f"{p}: missing (run fviz eval --out-dir {run_dir} first)")
-    from fviz.run.config import csv_number
     from fviz.run.store import read_config
 
     specs = list(read_config(run_dir).options.names)
-    variants = deep_variants(specs)
+    with open(csv_path, newline="") as f:
+        return table_from_rows(_rows(f, csv_path), deep_variants(specs), str(csv_path))
+
+
+def table_from_rows(rows, variants: dict[str, dict], source: str = "row") -> tuple[list[str], list[list[str]]]:
+    """(header, rows) of Table 1 from per-pair, per-estimator rows (metrics.csv's, or
+    :meth:`fviz.evaluate.PairResult.rows`); ``variants``: display name -> parsed variant of the deep ones.
+    A value that is not a number is a one-line error naming ``source``:line and the column."""
+    from fviz.run.config import csv_number
+
     sums: dict[tuple[str, str], list[float]] = defaultdict(list)
     order: dict[str, None] = {}
-    with open(csv_path, newline="") as f:
-        for line, row in enumerate(_rows(f, csv_path), 2):
-            est = row["estimator"]
-            if row.get("error"):
-                continue
-            if est in variants:
-                v = variants[est]
-                label = f"{ARCH_LABELS[v['arch']]} {HEAD_LABELS[(v['head'], v['pos'])]}"
-                cells = [v["norm"]]
-            else:
-                label = CLASSICAL_LABELS.get(est) or (f"Mean GT F of {est[5:]}" if est.startswith("mean-") else est)
-                cells = list(NORMS)
-            order[label] = None
-            for n in cells:
-                for m in ("abs", "sqr"):
-                    x = csv_number(row, f"epi_{m}_{n}", f"{csv_path}:{line}")
-                    if math.isfinite(x):
-                        sums[(label, f"{m}_{n}")].append(x)
+    for line, row in enumerate(rows, 2):
+        est = row["estimator"]
+        if row.get("error"):
+            continue
+        if est in variants:
+            v = variants[est]
+            label = f"{ARCH_LABELS[v['arch']]} {HEAD_LABELS[(v['head'], v['pos'])]}"
+            cells = [v["norm"]]
+        else:
+            label = CLASSICAL_LABELS.get(est) or (f"Mean GT F of {est[5:]}" if est.startswith("mean-") else est)
+            cells = list(NORMS)
+        order[label] = None
+        for n in cells:
+            for m in ("abs", "sqr"):
+                x = csv_number(row, f"epi_{m}_{n}", f"{source}:{line}")
+                if math.isfinite(x):
+                    sums[(label, f"{m}_{n}")].append(x)
     gt = CLASSICAL_LABELS["gt"]
     labels = [lbl for lbl in order if lbl != gt] + ([gt] if gt in order else [])
     header = ["Method"] + [f"{n.upper()} EPI-{m.upper()}" for n in NORMS for m in ("abs", "sqr")]
-    rows = []
+    table = []
     for lbl in labels:
         vals = [sums.get((lbl, f"{m}_{n}"), []) for n in NORMS for m in ("abs", "sqr")]
-        rows.append([lbl] + [f"{sum(v) / len(v):.4g}" if v else "" for v in vals])
-    return header, rows
+        table.append([lbl] + [f"{sum(v) / len(v):.4g}" if v else "" for v in vals])
+    return header, table
 
 
 def run_figures(run_dir: Path) -> dict[str, dict]:

@@ -46,8 +46,8 @@ def csv_number(row: dict[str, Any], column: str, where: str) -> float:
         return float("nan")
     try:
         return float(text)
-    except ValueError:
-        raise FvizError(f"{where}: column {column!r} holds {text[:30]!r}, not a number") from None
+    except (TypeError, ValueError):
+        raise FvizError(f"{where}: column {column!r} holds {str(text)[:30]!r}, not a number") from None
 
 
 def check_metric_column(metric: str, flag: str = "--metric") -> None:
