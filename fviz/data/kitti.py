@@ -380,7 +380,7 @@ class KittiSequence:
         K_b, _ = _decompose(self.projections[pid.cam_b])
         T_ab = E_b @ np.linalg.inv(E_a)
         if not np.linalg.norm(T_ab[:3, 3]) >= MIN_BASELINE_M:
-            where = f"poses {self.poses_path}: frames {pid.frame_a} and {pid.frame_b}" if pid.frame_a != pid.frame_b \
+            where = f"poses {self.oxts_dir or self.poses_path}: frames {pid.frame_a} and {pid.frame_b}" if pid.frame_a != pid.frame_b \
                 else f"{self.calib_path}: cameras {pid.cam_a} and {pid.cam_b}"
             raise FvizError(f"{where} are at the same place (baseline {np.linalg.norm(T_ab[:3, 3]):.2g} m): "
                             "a pair without motion has no fundamental matrix")
