@@ -19,7 +19,7 @@ FAST = ("--max-keypoints", "400")
 INSPECT = ("inspect", "pair", "--synthetic", "--seed", "0", *FAST)
 
 
-def fviz(*args, cwd=PROJECT, timeout=300):
+def fviz(*args, cwd=PROJECT, timeout=600):
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(PROJECT), str(FAULTS), os.environ.get("PYTHONPATH", "")]))
     return subprocess.run([sys.executable, "-m", "fviz", *map(str, args)], capture_output=True, text=True, env=env,
                           cwd=cwd, timeout=timeout)
