@@ -18,7 +18,7 @@ from fviz.evaluate import MIN_MATCHES
 from fviz.run.config import MIN_PAIRS_PER_WORKER, RESULTS_FILE, RunConfig, prepare, resolve_estimators
 from fviz.run.reports import write_reports
 from fviz.run.store import (
-    ResultStore, RunOutcome, locked, merge_record, payload_ok, payload_path, read_config, read_records, save_payload,
+    ResultStore, RunOutcome, locked, merge_record, payload_path, read_config, read_records, save_payload,
     write_config,
 )
 
@@ -96,7 +96,9 @@ class PairEvaluator:
                 rec["error"] = f"only {result.n_matches} matches ({MIN_MATCHES} needed)"
             rec["diagnostics"] = self.diagnose(pair, result)
             if self.config.full:
-                save_payload(payload_path(self.out_dir, index), result)
+                path = payload_path(self.out_dir, index)
+                save_payload(path, result)
+                rec["payload_bytes"] = path.stat().st_size  # resume re-evaluates a pair whose payload is cut
         except WriteError:  # a full disk is not the pair's fault: the run stops (--resume finishes it)
             raise
         except Exception as exc:  # one bad pair must not stop the run
@@ -674,21 +676,31 @@ def _widened(config: RunConfig, out_dir: Path, resume: bool) -> RunConfig:
 def _todo(config: RunConfig, store: ResultStore, pairs: list[tuple[int, PairId]], out_dir: Path
           ) -> tuple[list[tuple[int, PairId]], dict[str, tuple[str, ...]], dict[str, Any]]:
     """(pairs to evaluate, pair name -> the estimators it lacks where it has a record with a result,
-    pair name -> that record's Entry). A --full pair whose payload is unreadable is evaluated again."""
+    pair name -> that record's Entry). A --full pair whose payload is missing or not the size its record
+    says is evaluated again, and whole (its payload holds every estimator's inliers)."""
     names = config.estimator_names()
     latest = store.latest()
     todo, only, partial = [], {}, {}
     for i, pid in pairs:
         entry = latest.get(pid.name)
-        if entry is not None and config.full and entry.has_result and not payload_ok(payload_path(out_dir, i)):
+        if entry is not None and config.full and entry.has_result and not _payload_intact(payload_path(out_dir, i), entry):
             entry = None
         missing = tuple(n for n in names if entry is None or n not in entry.estimators)
         if not missing:
             continue
         todo.append((i, pid))
-        if entry is not None and entry.has_result and len(missing) < len(names):
+        if entry is not None and entry.has_result and len(missing) < len(names) and not config.full:
             only[pid.name], partial[pid.name] = missing, entry
     return todo, only, partial
+
+
+def _payload_intact(path: Path, entry) -> bool:
+    """Whether a --full payload is there and as long as when it was written (read only by the reports)."""
+    try:
+        size = path.stat().st_size
+    except OSError:
+        return False
+    return entry.payload_bytes is None or size == entry.payload_bytes
 
 
 def _run(config: RunConfig, out_dir: Path, pool: WorkerPool | None, resume: bool, progress: bool) -> RunOutcome:

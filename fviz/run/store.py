@@ -244,6 +244,7 @@ class Entry:
     index: int  # the pair's place in the run's selection
     estimators: tuple[str, ...]
     has_result: bool  # False: the pair failed as a whole
+    payload_bytes: int | None = None  # size of its --full payload when written
 
 
 class ResultStore:
@@ -319,8 +320,9 @@ class ResultStore:
             if config is not None and rec.get("fingerprint") != config.fingerprint(rec["ref"]):
                 other += 1
                 continue
+            size = rec.get("payload_bytes")
             out[key] = Entry(self.path, off, indices[key] if indices else rec["index"], tuple(rec["estimators"]),
-                             rec.get("result") is not None)
+                             rec.get("result") is not None, size if isinstance(size, int) else None)
         if other or outside:
             parts = [f"{other} made with other settings (or without a fingerprint)"] * bool(other)
             parts += [f"{outside} of pairs outside the run's selection"] * bool(outside)
