@@ -200,6 +200,18 @@ SUMMARY_COLUMNS = (("sed_median", "SED px"), ("rot_err_deg", "rot °"), ("trans_
                    ("nsgd", "NSGD"), ("inlier_ratio", "inliers"))
 
 
+def precision_lines(prec: dict[str, float]) -> list[str]:
+    """The match precision of a pair (fviz.geometry.precision) as one line, or none without it."""
+    if not prec:
+        return []
+    pct = lambda k: "n/a" if not np.isfinite(prec.get(k, np.nan)) else f"{prec[k]:.0%}"  # noqa: E731
+    px = [k for k in prec if k.startswith("px_prec@")]
+    epi = [k for k in prec if k.startswith("epi_prec@")]
+    return ["", "Match precision, before any estimator: " + ", ".join(f"{pct(k)} within {k.partition('@')[2]} px" for k in px)
+            + " of F_gt; glue-factory's epi_prec@" + "/".join(k.partition("@")[2] for k in epi) + ": "
+            + " / ".join(pct(k) for k in epi) + "."]
+
+
 def pair_markdown(result: PairResult, probe_steps: int = 0) -> str:
     """The summary panel: the pair, a compact table (every metric is in the JSON), hints, F matrices last."""
     p = result.pair
@@ -209,6 +221,7 @@ def pair_markdown(result: PairResult, probe_steps: int = 0) -> str:
         f"{p['kind']} pair, frame {p['frame_a']} cam {p['cam_a']} → frame {p['frame_b']} cam {p['cam_b']}; "
         f"ground truth good to ~{p['gt_accuracy_px']} px. {result.n_matches} matches, {result.n_eval} within "
         f"{result.eval_threshold_px:g} px of the GT lines (the evaluation matches).",
+        *precision_lines(result.match_precision),
         "",
         "| F | " + " | ".join(t for _, t in SUMMARY_COLUMNS) + " | s |",
         "|---|" + "--:|" * (len(SUMMARY_COLUMNS) + 1),
