@@ -160,9 +160,10 @@ _RESULT_KEYS = {"pair": dict, "norm": str, "eval_threshold_px": _num, "F_gt": li
                 "notes": lambda v: isinstance(v, list) and all(isinstance(n, str) for n in v)}
 _ESTIMATOR_KEYS = {"name": str, "seconds": _num, "error": _opt_str,
                    "metrics": lambda v: isinstance(v, dict) and all(_num_or_none(x) for x in v.values())}
+_DIAGNOSTIC_NUMBERS = ("n_inliers", "homography_fraction", "gt_agree", "gt_sed_median_inliers")  # what triage reads
 _DIAGNOSTIC_KEYS = {"n_matches": _num, "baseline_m": _num, "rotation_fraction": _num_or_none,
                     "estimators": lambda v: isinstance(v, dict) and all(
-                        isinstance(e, dict) and all(_num_or_none(x) for x in e.values()) for e in v.values())}
+                        isinstance(e, dict) and all(_num_or_none(e.get(k)) for k in _DIAGNOSTIC_NUMBERS) for e in v.values())}
 
 
 def _ref_problem(rec: dict) -> str | None:
