@@ -1,8 +1,10 @@
-"""Nothing is lost: every file fviz writes goes to a temporary name beside its target and is renamed over
+"""Nothing is lost: every file fviz writes goes to a temporary file beside its target and is renamed over
 it only when complete. A symlink is written through (its target is replaced, the link stays); a folder,
 device node, FIFO or socket is never replaced (one-line :class:`FvizError`). On any failure or Ctrl-C the
 temporary file is removed and the previous version stays; a full disk or a size limit becomes a one-line
-error naming the file.
+error naming the file. The temporary file is made by ``tempfile.mkstemp`` in the target's folder (an
+unpredictable name, created with O_EXCL: a planted symlink is never written through), and the file that
+replaces another keeps its permissions (a new one gets the umask's).
 
     with replacing("runs/x.csv") as tmp:   # tmp: where to write; renamed onto the target on success
         tmp.write_text(...)
@@ -64,25 +66,44 @@ def target(path: str | Path) -> Path:
 
 
 def tmp_path(path: str | Path) -> Path:
-    """The temporary sibling of ``path`` (hidden, per process)."""
+    """A new, empty temporary file beside ``path`` (hidden, an unpredictable name, mode 600 until commit)."""
+    import tempfile
+
     path = Path(path)
-    return path.with_name(f".{path.name}.tmp{os.getpid()}")
+    fd, name = tempfile.mkstemp(prefix=f".{path.name}.tmp", dir=path.parent)
+    os.close(fd)
+    return Path(name)
+
+
+def _mode_for(final: Path) -> int:
+    """The permissions of the file ``final`` replaces, or those a new file gets under the umask."""
+    try:
+        return stat.S_IMODE(os.stat(final).st_mode)
+    except OSError:
+        mask = os.umask(0)
+        os.umask(mask)
+        return 0o666 & ~mask
 
 
 def prepare(path: str | Path) -> tuple[Path, Path]:
-    """(the file replaced, its temporary sibling) for writing ``path``; creates the folder."""
+    """(the file replaced, its temporary sibling, already created) for writing ``path``; creates the folder."""
     final = target(path)
     try:
         final.parent.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise FvizError(f"{path}: cannot create its folder: {describe_os_error(exc)}") from None
-    return final, tmp_path(final)
+    try:
+        return final, tmp_path(final)
+    except OSError as exc:
+        raise os_error(path, exc) from None
 
 
 def commit(path: str | Path, tmp: Path, final: Path) -> None:
-    """Rename the complete ``tmp`` over ``final`` (checked again: still a regular file or nothing)."""
+    """Rename the complete ``tmp`` over ``final`` (checked again: still a regular file or nothing),
+    with the permissions of the file it replaces."""
     try:
         target(path)
+        os.chmod(tmp, _mode_for(final))
         os.replace(tmp, final)
     except BaseException as exc:
         _remove(tmp)

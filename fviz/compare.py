@@ -68,6 +68,9 @@ def _distinct_tails(a: Path, b: Path) -> tuple[str, str]:
 
 def read_side(side: Side, metric: str) -> dict[str, tuple[float, str]]:
     """pair name -> (metric value or NaN, error message or "") of one estimator in a run's metrics.csv."""
+    from fviz.run.config import check_metric_column, csv_number
+
+    check_metric_column(metric)
     path = Path(side.run) / "metrics.csv"
     if not path.is_file():
         raise FvizError(f"{side.run}: no metrics.csv (run fviz eval --out-dir {side.run} first)")
@@ -77,10 +80,10 @@ def read_side(side: Side, metric: str) -> dict[str, tuple[float, str]]:
         if metric not in (reader.fieldnames or []):
             raise FvizError(f"--metric {metric!r}: not a column of {path}")
         estimators = set()
-        for row in reader:
+        for line, row in enumerate(reader, 2):
             estimators.add(row["estimator"])
             if row["estimator"] == side.estimator:
-                v = float(row[metric]) if row[metric] not in ("", None) else math.nan
+                v = csv_number(row, metric, f"{path}:{line}")
                 out[row["name"]] = (v, row.get("pair_error") or row.get("error") or "")
     if not out:
         raise FvizError(f"estimator {side.estimator!r}: not in {path} (it has {', '.join(sorted(estimators))})")

@@ -224,8 +224,10 @@ def evaluate_pair(
     eval_threshold_px: float = EVAL_THRESHOLD_PX,
     inlier_threshold_px: float = 1.0,
     cache: FeatureCache | None = None,
+    timeout: float | None = None,
 ) -> PairResult:
-    """Detect, match, run every estimator, and score it against the ground truth."""
+    """Detect, match, run every estimator (isolated, at most ``timeout`` s each: see
+    :func:`fviz.estimators.base.run_estimator`), and score it against the ground truth."""
     if norm not in NORMS:
         raise FvizError(f"--norm {norm!r}: choose one of {', '.join(NORMS)}")
     cache = cache or FeatureCache(features)
@@ -241,7 +243,7 @@ def evaluate_pair(
         notes.append("ETR is undefined for this pair (F33 = 0: rectified stereo); epi_* under ETR are NaN")
     results = []
     for name, fn in [(GT_NAME, lambda p, a, b: p.F_gt), *estimators]:
-        est: Estimate = run_estimator(name, fn, pair, m.x_a, m.x_b)
+        est: Estimate = run_estimator(name, fn, pair, m.x_a, m.x_b, timeout)
         if not est.ok:
             results.append(EstimatorResult(name, None, {}, est.seconds, est.error))
             continue

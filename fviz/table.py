@@ -13,7 +13,6 @@ NSGD recall, median SED / Sampson and failures per estimator; the oracle baselin
 from __future__ import annotations
 
 import csv
-import json
 import math
 from collections import defaultdict
 from pathlib import Path
@@ -56,17 +55,22 @@ def paper_table(run_dir: str | Path) -> tuple[list[str], list[list[str]]]:
     for p in (csv_path, cfg_path):
         if not p.is_file():
             raise FvizError(f"{p}: missing (run fviz eval --out-dir {run_dir} first)")
-    specs = json.loads(cfg_path.read_text())["options"]["names"]
+    from fviz.run.store import read_config
+
+    specs = list(read_config(run_dir).options.names)
     with open(csv_path, newline="") as f:
-        return table_from_rows(csv.DictReader(f), deep_variants(specs))
+        return table_from_rows(_rows(f, csv_path), deep_variants(specs), str(csv_path))
 
 
-def table_from_rows(rows, variants: dict[str, dict]) -> tuple[list[str], list[list[str]]]:
+def table_from_rows(rows, variants: dict[str, dict], source: str = "row") -> tuple[list[str], list[list[str]]]:
     """(header, rows) of Table 1 from per-pair, per-estimator rows (metrics.csv's, or
-    :meth:`fviz.evaluate.PairResult.rows`); ``variants``: display name -> parsed variant of the deep ones."""
+    :meth:`fviz.evaluate.PairResult.rows`); ``variants``: display name -> parsed variant of the deep ones.
+    A value that is not a number is a one-line error naming ``source``:line and the column."""
+    from fviz.run.config import csv_number
+
     sums: dict[tuple[str, str], list[float]] = defaultdict(list)
     order: dict[str, None] = {}
-    for row in rows:
+    for line, row in enumerate(rows, 2):
         est = row["estimator"]
         if row.get("error"):
             continue
@@ -80,9 +84,9 @@ def table_from_rows(rows, variants: dict[str, dict]) -> tuple[list[str], list[li
         order[label] = None
         for n in cells:
             for m in ("abs", "sqr"):
-                x = row.get(f"epi_{m}_{n}", "")
-                if x not in ("", "nan", None) and math.isfinite(float(x)):
-                    sums[(label, f"{m}_{n}")].append(float(x))
+                x = csv_number(row, f"epi_{m}_{n}", f"{source}:{line}")
+                if math.isfinite(x):
+                    sums[(label, f"{m}_{n}")].append(x)
     gt = CLASSICAL_LABELS["gt"]
     labels = [lbl for lbl in order if lbl != gt] + ([gt] if gt in order else [])
     header = ["Method"] + [f"{n.upper()} EPI-{m.upper()}" for n in NORMS for m in ("abs", "sqr")]
@@ -97,13 +101,29 @@ def run_figures(run_dir: Path) -> dict[str, dict]:
     """The standard figures of a run, from its metrics.csv."""
     from fviz.run.reports import FIGURE_KEYS, standard_figures
 
+    from fviz.run.config import csv_number
+
     per_pair: dict[str, list[float]] = {}
-    with open(run_dir / "metrics.csv", newline="") as f:
-        for row in csv.DictReader(f):
+    path = run_dir / "metrics.csv"
+    with open(path, newline="") as f:
+        for line, row in enumerate(_rows(f, path), 2):
             failed = bool(row.get("error") or row.get("pair_error"))
             per_pair.setdefault(row["estimator"], []).extend(
-                math.nan if failed or row.get(k) in (None, "") else float(row[k]) for k in FIGURE_KEYS)
+                math.nan if failed else csv_number(row, k, f"{path}:{line}") for k in FIGURE_KEYS)
     return standard_figures(per_pair)
+
+
+def _rows(f, path: Path):
+    """The rows of a metrics.csv, refused when it has no header with an ``estimator`` column or no row."""
+    reader = csv.DictReader(f)
+    if "estimator" not in (reader.fieldnames or []):
+        raise FvizError(f"{path}: not an fviz metrics.csv (no 'estimator' column)")
+    n = 0
+    for row in reader:
+        n += 1
+        yield row
+    if n == 0:
+        raise FvizError(f"{path}: no rows (the run evaluated no pair)")
 
 
 def write_table(run_dir: str | Path) -> tuple[Path, Path]:

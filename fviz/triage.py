@@ -348,7 +348,8 @@ def check_choice(config, records_sample: dict[str, Any] | None, by: str, metric:
     if metric in NOT_RANKING:
         raise FvizError(f"--metric {metric}: not a ranking metric ({NOT_RANKING[metric]})")
     if records_sample is not None:
-        keys = next((e["metrics"].keys() for e in records_sample["result"]["estimators"] if e["metrics"]), ())
+        keys = [k for k in next((e["metrics"] for e in records_sample["result"]["estimators"] if e["metrics"]), ())
+                if k not in NOT_RANKING]
         if keys and metric not in keys:
             raise FvizError(f"--metric {metric!r}: unknown (choose one of {', '.join(keys)})")
 

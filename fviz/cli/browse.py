@@ -11,6 +11,8 @@ from typing import Annotated, Optional
 
 import typer
 
+from fviz.cli import options as o
+
 # Metric columns of the summary table, in this order when present (every metric: --json).
 KEY_METRICS = ("sed_median", "sampson_median", "rot_err_deg", "trans_err_deg", "nsgd", "inlier_ratio",
                "epipole_err_deg", "epi_abs", "epi_sqr")
@@ -19,8 +21,10 @@ Recording = Annotated[Path, typer.Argument(help="A .rrd written by fviz (inspect
 
 
 WebBind = Annotated[str, typer.Option("--bind", help="Address the web viewer's servers listen on; 0.0.0.0 exposes them to the network.")]
-Port = Annotated[int, typer.Option("--port", help="Port of the recording (gRPC) server, with --web.")]
-WebPort = Annotated[int, typer.Option("--web-port", help="Port of the web viewer's page, with --web.")]
+Port = Annotated[int, typer.Option("--port", help="Port of the recording (gRPC) server, with --web.",
+                                   callback=o.checked("--port", lambda p: 1 <= p <= 65535, "must be a port 1 .. 65535"))]
+WebPort = Annotated[int, typer.Option("--web-port", help="Port of the web viewer's page, with --web.",
+                                      callback=o.checked("--web-port", lambda p: 1 <= p <= 65535, "must be a port 1 .. 65535"))]
 
 
 def serve(path: Path, bind: str, port: int, web_port: int, blueprint: Optional[Path] = None) -> None:

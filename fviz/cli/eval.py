@@ -59,6 +59,7 @@ def _run_options(
     seed: o.Seed = 0,
     norm: o.Norm = "fbn",
     eval_threshold: o.EvalThreshold = 2.0,
+    estimator_timeout: o.EstimatorTimeout = 600.0,
     out_dir: OutDir = Path("runs/eval"),
     workers: Workers = None,
     shard: Shard = None,
@@ -106,11 +107,11 @@ class RunArgs:
             if self.estimator:
                 existing = replace(existing, options=replace(existing.options, names=names))
             return replace(existing, shard=parse_shard(self.shard) if self.shard else existing.shard,
-                           full=existing.full or self.full)
+                           full=existing.full or self.full, estimator_timeout=self.estimator_timeout)
         opts = EstimatorOptions(names, self.features, self.max_keypoints, self.ratio, self.mutual, threshold,
                                 self.confidence, self.max_iters, self.seed)
         return RunConfig(self.selection(), opts, self.norm, self.eval_threshold, self.full,
-                         parse_shard(self.shard) if self.shard else None)
+                         parse_shard(self.shard) if self.shard else None, estimator_timeout=self.estimator_timeout)
 
     def selection(self):
         from fviz.run import Selection

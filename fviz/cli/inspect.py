@@ -48,6 +48,7 @@ def pair(
     seed: o.Seed = 0,
     norm: o.Norm = "fbn",
     eval_threshold: o.EvalThreshold = 2.0,
+    estimator_timeout: o.EstimatorTimeout = 600.0,
     lines: Annotated[int, typer.Option("--lines", help="Epipolar lines drawn per F (a fixed random subset of matches).")] = 30,
     probe: Annotated[int, typer.Option("--probe", help="Steps of the probe timeline: the worst evaluation matches, one per step.")] = 20,
     probe_by: Annotated[Optional[str], typer.Option("--probe-by", help="Order the probe by this estimator's residual (default: the largest over the estimators).")] = None,
@@ -85,7 +86,7 @@ def pair(
     _check_viewer(spawn, web, bind, port, web_port)
     ests = opts.estimators()
     p = load_pair(kitti_root, sequence, drive, frame, pair_kind, step, cams, synthetic, seed)
-    result = evaluate_pair(p, ests, opts.feature_config(), norm, eval_threshold, threshold)
+    result = evaluate_pair(p, ests, opts.feature_config(), norm, eval_threshold, threshold, timeout=estimator_timeout)
     path = write_pair_recording(out or default_out(p.id.name), p, result, lines, probe, probe_by)
     doc = result.to_dict()
     doc["recording"] = str(path)

@@ -76,7 +76,15 @@ Step = Annotated[int, typer.Option("--step", help="Frame step of temporal pairs.
 Cams = Annotated[Optional[str], typer.Option("--cams", help="Cameras a,b (default 0,1 for stereo, 0,0 for temporal; 2,3 and 2,2 where only the colour images exist). A gray/colour pair (0,2) is evaluated in gray, with a note.")]
 Estimators = Annotated[Optional[list[str]], typer.Option("--estimator", "-e", help="Repeatable: 7point, 8point, lmeds, ransac, magsac, usac-default, usac-accurate, usac-prosac, usac-fm8pts, usac-parallel, poselib, poselib-E, colmap, deep, deep:PATH, module:function, ahead; in eval/triage also mean:SEQ,... and oracle-mean.")]
 Features = Annotated[str, typer.Option("--features", help="sift, orb or akaze.")]
-MaxKeypoints = Annotated[int, typer.Option("--max-keypoints", help="Keypoints per image.")]
+
+
+def _keypoints(value: int) -> int:
+    from fviz.estimators.options import MAX_KEYPOINTS  # lazily: numpy stays out of --help
+
+    return checked("--max-keypoints", lambda n: 1 <= n <= MAX_KEYPOINTS, f"must be 1 .. {MAX_KEYPOINTS}")(value)
+
+
+MaxKeypoints = Annotated[int, typer.Option("--max-keypoints", help="Keypoints per image (1 .. 1000000).", callback=_keypoints)]
 Ratio = Annotated[float, typer.Option("--ratio", help="Lowe ratio test.", callback=fraction("--ratio"))]
 Mutual = Annotated[bool, typer.Option("--mutual/--no-mutual", help="Keep only mutual nearest neighbours.")]
 Threshold = Annotated[str, typer.Option("--threshold", metavar="PX|LIST|sweep", help="Inlier threshold of robust estimators (px); 'sweep' (0.25,0.5,1,2,4) or a list 0.5,1,2 runs each robust estimator at every value plus its per-pair oracle (NAME@T, NAME@oracle).", callback=check_threshold)]
@@ -90,8 +98,11 @@ def thresholds(names: tuple[str, ...], threshold: str) -> tuple[tuple[str, ...],
     value, grid = parse_threshold(str(threshold))
     return (sweep_specs(names, grid) if grid else tuple(names)), value
 Confidence = Annotated[float, typer.Option("--confidence", help="Confidence of robust estimators.", callback=fraction("--confidence"))]
-MaxIters = Annotated[int, typer.Option("--max-iters", help="Iteration cap of robust estimators.")]
+MaxIters = Annotated[int, typer.Option("--max-iters", help="Iteration cap of robust estimators.",
+                                       callback=checked("--max-iters", lambda n: 1 <= n < 2**31, "must be 1 .. 2147483647"))]
 Seed = Annotated[int, typer.Option("--seed", help="Random seed (robust estimators; synthetic scene).")]
+EstimatorTimeout = Annotated[float, typer.Option("--estimator-timeout", help="Seconds one estimator may take on one pair; past it, it fails that pair (and the run goes on).",
+                                                callback=positive("--estimator-timeout"))]
 Norm = Annotated[str, typer.Option("--norm", help="Normalization for EPI-ABS / EPI-SQR: fbn, abs or etr.")]
 EvalThreshold = Annotated[float, typer.Option("--eval-threshold", help="Evaluation matches: GT symmetric epipolar distance below this (px).", callback=positive("--eval-threshold"))]
 Synthetic = Annotated[bool, typer.Option("--synthetic", help="A synthetic KITTI-like scene instead of KITTI (no download).")]

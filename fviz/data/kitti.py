@@ -15,6 +15,7 @@ GPS/IMU packets of both frames, as pykitti and the KITTI devkit derive them (:fu
 
 from __future__ import annotations
 
+import errno
 import os
 import re
 from dataclasses import dataclass
@@ -32,6 +33,29 @@ PAIR_KINDS = ("stereo", "temporal")
 GT_ACCURACY_PX = {"stereo": 0.5, "temporal": 3.0}
 # Without --cams: the gray cameras, or the colour ones where the gray images are absent (colour download).
 DEFAULT_CAMS = {"stereo": ((0, 1), (2, 3)), "temporal": ((0, 0), (2, 2))}
+# Poses fviz trusts: rotation blocks orthonormal to ROTATION_TOL (max |R^T R - I|; KITTI's printed digits
+# give ~1e-6), det(R) = +1, translations below MAX_TRANSLATION_M; a pair moves by at least MIN_BASELINE_M.
+ROTATION_TOL = 1e-3
+MAX_TRANSLATION_M = 1e6
+MIN_BASELINE_M = 1e-6
+
+
+def check_poses(T: np.ndarray, path: Path) -> np.ndarray:
+    """(N, 4, 4) poses, checked: finite, rotations orthonormal with det +1 (ROTATION_TOL), translations
+    below MAX_TRANSLATION_M. Raises FvizError naming the file and line of the first bad pose."""
+    R, t = T[:, :3, :3], T[:, :3, 3]
+    with np.errstate(all="ignore"):
+        ortho = np.abs(np.swapaxes(R, 1, 2) @ R - np.eye(3)).max(axis=(1, 2))
+        det = np.linalg.det(np.nan_to_num(R))
+    checks = ((~np.isfinite(T).all(axis=(1, 2)), "NaN or infinite numbers"),
+              (~(np.abs(t) < MAX_TRANSLATION_M).all(axis=1), f"a translation of {MAX_TRANSLATION_M:g} m or more"),
+              (~(ortho <= ROTATION_TOL), f"the rotation block is not a rotation (|R^T R - I| > {ROTATION_TOL:g})"),
+              (~(det > 0), "the rotation block is a reflection (det < 0)"))
+    for bad, why in checks:
+        if bad.any():
+            line = int(np.nonzero(bad)[0][0]) + 1
+            raise FvizError(f"poses {path}:{line}: {why}")
+    return T
 
 
 def check_file(path: Path, what: str) -> Path:
@@ -39,6 +63,12 @@ def check_file(path: Path, what: str) -> Path:
     if path.is_dir():
         raise FvizError(f"{what} {path}: a folder, not a file")
     if not path.exists():
+        if path.is_symlink():
+            try:
+                os.stat(path)
+            except OSError as exc:
+                why = "a symlink loop" if exc.errno == errno.ELOOP else f"a symlink to the missing {os.readlink(path)}"
+                raise FvizError(f"{what} {path}: {why}") from None
         raise FvizError(f"missing {what}: {path}")
     return path
 
@@ -57,7 +87,10 @@ def read_image(path: Path) -> np.ndarray:
     check_file(path, "image")
     if not os.access(path, os.R_OK):
         raise FvizError(f"cannot read image {path} (permission denied)")
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    from fviz.quiet import native_stderr_silenced
+
+    with native_stderr_silenced():  # libpng's own "libpng error: ..." line: fviz's error says it
+        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if img is None or img.size == 0:
         raise FvizError(f"unreadable or corrupt image: {path}")
     if img.dtype != np.uint8:
@@ -258,12 +291,9 @@ class KittiSequence:
             raise FvizError(f"poses {self.poses_path}: cannot parse ({exc})") from None
         if rows.shape[1] != 12:
             raise FvizError(f"poses {self.poses_path}: {rows.shape[1]} numbers per line, expected 12")
-        if not np.isfinite(rows).all():
-            line = int(np.nonzero(~np.isfinite(rows).all(axis=1))[0][0]) + 1
-            raise FvizError(f"poses {self.poses_path}:{line}: NaN or infinite numbers")
         T = np.tile(np.eye(4), (len(rows), 1, 1))
         T[:, :3, :] = rows.reshape(-1, 3, 4)
-        return T
+        return check_poses(T, self.poses_path)
 
     @property
     def pose_frames(self) -> set[int]:
@@ -349,6 +379,11 @@ class KittiSequence:
         K_a, _ = _decompose(self.projections[pid.cam_a])
         K_b, _ = _decompose(self.projections[pid.cam_b])
         T_ab = E_b @ np.linalg.inv(E_a)
+        if not np.linalg.norm(T_ab[:3, 3]) >= MIN_BASELINE_M:
+            where = f"poses {self.oxts_dir or self.poses_path}: frames {pid.frame_a} and {pid.frame_b}" if pid.frame_a != pid.frame_b \
+                else f"{self.calib_path}: cameras {pid.cam_a} and {pid.cam_b}"
+            raise FvizError(f"{where} are at the same place (baseline {np.linalg.norm(T_ab[:3, 3]):.2g} m): "
+                            "a pair without motion has no fundamental matrix")
         F = fundamental_from_projections(K_a @ E_a[:3], K_b @ E_b[:3])
         return K_a, K_b, T_ab[:3, :3], T_ab[:3, 3], F
 

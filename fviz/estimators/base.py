@@ -7,10 +7,21 @@ F: (3, 3); inlier_mask: (M,) bool, or None when the method has no notion of inli
 Correspondence-free (deep) estimators read ``pair.image_a`` / ``pair.image_b`` and ignore the matches.
 The runner (:func:`fviz.estimators.run_estimator`) times the call and turns exceptions and
 invalid (NaN, zero) matrices into an :class:`Estimate` with ``error`` set.
+
+Every estimator is isolated the same way on every path (inspect, eval with any number of workers,
+triage): it gets its own copies of the pair and the matches (changing them in place harms no other
+estimator), what it prints goes to stderr (``--json`` on stdout stays clean), anything it raises
+(SystemExit and KeyboardInterrupt included) is its failure on that pair, and past ``timeout`` seconds
+(``--estimator-timeout``) it fails the pair while the run goes on; its thread is then left behind,
+daemonic, and ends with the process.
 """
 
 from __future__ import annotations
 
+import contextlib
+import copy
+import sys
+import threading
 import time
 from dataclasses import dataclass
 from typing import Any, Callable
@@ -33,16 +44,50 @@ class Estimate:
         return self.error is None
 
 
-def run_estimator(name: str, fn: EstimateFn, pair, x_a: np.ndarray, x_b: np.ndarray) -> Estimate:
-    """Call one estimator, never raising: failures come back as ``Estimate.error``."""
+DEFAULT_TIMEOUT_S = 600.0
+
+
+def _isolated_call(fn: EstimateFn, args: tuple, timeout: float) -> tuple[str, Any]:
+    """("ok", what fn returned), ("raised", the exception) or ("timeout", None): fn runs in a thread of
+    its own (torch's grad mode carried over), its stdout sent to stderr. A Ctrl-C reaches the caller."""
+    box: dict[str, Any] = {}
+    torch = sys.modules.get("torch")
+    grad = torch.is_grad_enabled() if torch is not None else None
+
+    def call() -> None:
+        try:
+            if grad is not None:
+                torch.set_grad_enabled(grad)
+            box["ok"] = fn(*args)
+        except BaseException as exc:  # SystemExit, KeyboardInterrupt: the estimator's failure, not the run's
+            box["raised"] = exc
+
+    thread = threading.Thread(target=call, daemon=True, name="fviz-estimator")
+    with contextlib.redirect_stdout(sys.stderr):
+        thread.start()
+        thread.join(timeout)
+    if thread.is_alive():
+        return "timeout", None
+    return next(iter(box.items()))
+
+
+def run_estimator(name: str, fn: EstimateFn, pair, x_a: np.ndarray, x_b: np.ndarray,
+                  timeout: float | None = None) -> Estimate:
+    """Call one estimator, isolated (see the module docstring), never raising: failures come back as
+    ``Estimate.error``."""
     from fviz.geometry import is_valid
 
+    timeout = DEFAULT_TIMEOUT_S if timeout is None else timeout
+    args = (copy.deepcopy(pair), np.array(x_a, copy=True), np.array(x_b, copy=True))
     t0 = time.perf_counter()
-    try:
-        out = fn(pair, x_a, x_b)
-    except Exception as exc:  # an estimator failing must not stop the others
-        return Estimate(name, None, None, time.perf_counter() - t0, f"{type(exc).__name__}: {exc}")
+    kind, out = _isolated_call(fn, args, timeout)
     seconds = time.perf_counter() - t0
+    if kind == "timeout":
+        return Estimate(name, None, None, seconds, f"timed out after {timeout:g} s (--estimator-timeout)")
+    if kind == "raised":
+        text = f"called exit({out.code!r})" if isinstance(out, SystemExit) else str(out) or "raised with no message"
+        what = f"{type(out).__name__}: {text}"
+        return Estimate(name, None, None, seconds, what)
     try:
         F, mask = _interpret(out, len(x_a))
     except (TypeError, ValueError) as exc:  # a user's function returning something else

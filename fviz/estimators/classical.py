@@ -29,7 +29,7 @@ MIN_MATCHES = {"7point": 7, "8point": 8, "lmeds": 8, "ransac": 8, "magsac": 8, *
 
 @dataclass(frozen=True)
 class RobustConfig:
-    """threshold: inlier distance in px; confidence in (0, 1); max_iters: iteration cap; seed: RNG seed."""
+    """threshold: inlier distance in px; confidence in (0, 1] (1: run to max_iters); max_iters: iteration cap; seed: RNG seed."""
 
     threshold: float = 1.0
     confidence: float = 0.999
@@ -39,8 +39,8 @@ class RobustConfig:
     def __post_init__(self):
         if self.threshold <= 0:
             raise FvizError(f"--threshold {self.threshold}: must be > 0")
-        if not 0 < self.confidence < 1:
-            raise FvizError(f"--confidence {self.confidence}: must be in (0, 1)")
+        if not 0 < self.confidence <= 1:
+            raise FvizError(f"--confidence {self.confidence}: must be in (0, 1]")
         if self.max_iters < 1:
             raise FvizError(f"--max-iters {self.max_iters}: must be >= 1")
 

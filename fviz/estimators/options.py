@@ -6,6 +6,8 @@ from dataclasses import dataclass
 
 from fviz.errors import FvizError
 
+MAX_KEYPOINTS = 1_000_000  # per image: far above any detector's use, below OpenCV's int limit
+
 
 @dataclass(frozen=True)
 class EstimatorOptions:

@@ -73,12 +73,55 @@ def needs_matches(spec: str) -> bool:
     return not (spec == "deep" or spec.startswith("deep:") or spec == AHEAD or is_run_baseline(spec))
 
 
-def _user_function(spec: str) -> EstimateFn:
-    module_name, _, attr = spec.partition(":")
+def _import_file(spec: str, path_text: str):
+    """The module of a ``file.py:function`` spec, loaded from that file (its folder first on the import
+    path, so that its own imports of neighbours work)."""
+    import hashlib
+    import importlib.util
+    import sys
+    from pathlib import Path
+
+    path = Path(path_text).expanduser()
+    if not path.is_file():
+        raise FvizError(f"--estimator {spec}: no such file {path}")
+    name = f"fviz_user_{path.stem}_{hashlib.sha1(str(path.resolve()).encode()).hexdigest()[:8]}"
+    if name in sys.modules:
+        return sys.modules[name]
+    folder = str(path.resolve().parent)
+    if folder not in sys.path:
+        sys.path.insert(0, folder)
+    loader_spec = importlib.util.spec_from_file_location(name, path)
+    if loader_spec is None or loader_spec.loader is None:
+        raise FvizError(f"--estimator {spec}: {path} is not a Python file")
+    module = importlib.util.module_from_spec(loader_spec)
+    sys.modules[name] = module
     try:
-        module = importlib.import_module(module_name)
-    except ImportError as exc:
-        raise FvizError(f"--estimator {spec}: cannot import module {module_name!r} ({exc})") from None
+        loader_spec.loader.exec_module(module)
+    except BaseException as exc:  # its import failing (or exiting) is a bad --estimator, not a crash
+        del sys.modules[name]
+        raise FvizError(f"--estimator {spec}: importing {path} failed ({type(exc).__name__}: {' '.join(str(exc).split())})"
+                        ) from None
+    return module
+
+
+def _user_function(spec: str) -> EstimateFn:
+    """``module:function`` (importable from the working directory too, as with ``python -m``) or
+    ``path/to/file.py:function``."""
+    import os
+    import sys
+
+    module_name, _, attr = spec.rpartition(":")
+    if module_name.endswith(".py") or "/" in module_name or os.sep in module_name:
+        module = _import_file(spec, module_name)
+    else:
+        if "" not in sys.path and os.getcwd() not in sys.path:
+            sys.path.append(os.getcwd())
+        try:
+            module = importlib.import_module(module_name)
+        except ImportError as exc:
+            raise FvizError(f"--estimator {spec}: cannot import module {module_name!r} ({exc})") from None
+        except Exception as exc:  # the module itself raised while importing
+            raise FvizError(f"--estimator {spec}: importing {module_name!r} failed ({type(exc).__name__}: {exc})") from None
     fn = getattr(module, attr, None)
     if not callable(fn):
         raise FvizError(f"--estimator {spec}: {module_name} has no function {attr!r}")

@@ -55,7 +55,11 @@ def read_checkpoint(path: str | Path) -> dict[str, Any]:
     try:
         ckpt = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # torch raises many types for a foreign or corrupt file
-        raise FvizError(f"{path}: not an fviz model checkpoint ({_unreadable_reason(exc)})") from None
+        with open(path, "rb") as f:  # neither a zip (torch >= 1.6) nor a pickle: not a torch file at all
+            head = f.read(2)
+        torch_file = head == b"PK" or head[:1] == b"\x80"
+        reason = _unreadable_reason(exc) if torch_file else "it is not a torch file"
+        raise FvizError(f"{path}: not an fviz model checkpoint ({reason})") from None
     if not isinstance(ckpt, dict) or ckpt.get("format") != FORMAT:
         raise FvizError(f"{path}: not an fviz model checkpoint (no '{FORMAT}' format marker)")
     if not isinstance(ckpt.get("format_version", 0), int) or ckpt.get("format_version", 0) > FORMAT_VERSION:

@@ -4,8 +4,10 @@ A run lives in one ``--out-dir``::
 
     run.json         the run's configuration (selection, estimator options, the F of the mean-F baselines)
     results.jsonl    one JSON record per finished pair, appended and flushed as pairs finish: the
-                     source of truth (``--resume`` skips the pairs it holds; a later record of a pair
-                     supersedes an earlier one; a line cut by a crash is ignored)
+                     source of truth (``--resume`` skips the pairs it holds and adds only the estimators a
+                     pair lacks; a later record of a pair supersedes an earlier one; a line cut by a crash,
+                     a line that is not a record, and a record whose fingerprint of settings and pair is
+                     not the run's are ignored, with a warning)
     metrics.csv      PairResult.rows() of every pair: one row per pair x estimator, ``gt`` included
     metrics.parquet  the same rows
     summary.md       standard figures (pose AUC, NSGD recall, median SED / Sampson, failures), per-estimator

@@ -10,7 +10,7 @@ from typing import Any, Callable
 import numpy as np
 
 from fviz.estimators.baselines import constant_estimator, mean_fundamental
-from fviz.estimators.options import EstimatorOptions
+from fviz.estimators.options import MAX_KEYPOINTS, EstimatorOptions
 from fviz.estimators.registry import MEAN_PREFIX, ORACLE_MEAN, is_run_baseline
 from fviz.data.kitti import PAIR_KINDS
 from fviz.data.pair import PairId
@@ -28,12 +28,35 @@ RRD_FILE = "eval.rrd"
 PAYLOAD_DIR = "pairs"
 
 SUMMARY_JSON = "summary.json"
+ESTIMATOR_TIMEOUT_S = 600.0  # default --estimator-timeout: one estimator on one pair
 MIN_PAIRS_PER_WORKER = 4  # fewer pairs than this per process: starting one costs more than it saves
 CACHE_ITEMS = 16  # features kept per worker, plus 2 per frame of the largest step (frame-major order)
 
 # Columns of the CSV that are text or integers; every other column is a float.
 TEXT_COLUMNS = ("name", "source", "root", "sequence", "kind", "estimator", "norm", "error", "pair_error")
 INT_COLUMNS = ("index", "frame_a", "frame_b", "cam_a", "cam_b", "n_matches", "n_eval")
+ID_COLUMNS = ("index", "frame_a", "frame_b", "cam_a", "cam_b")  # integers that name a pair, not metrics
+
+
+def csv_number(row: dict[str, Any], column: str, where: str) -> float:
+    """The number in ``column`` of a metrics.csv row (NaN when empty or "nan"); FvizError naming ``where``
+    (file:line) and the column for any other text."""
+    text = row.get(column)
+    if text in (None, "", "nan", "NaN"):
+        return float("nan")
+    try:
+        return float(text)
+    except (TypeError, ValueError):
+        raise FvizError(f"{where}: column {column!r} holds {str(text)[:30]!r}, not a number") from None
+
+
+def check_metric_column(metric: str, flag: str = "--metric") -> None:
+    """A one-line error when ``metric`` names a text or identity column of metrics.csv."""
+    if metric in TEXT_COLUMNS or metric in ID_COLUMNS:
+        raise FvizError(f"{flag} {metric}: a {'text' if metric in TEXT_COLUMNS else 'pair'} column, not a metric "
+                        "(e.g. sed_median, pose_err_deg, nsgd, inlier_ratio)")
+
+
 # Metrics summarised per estimator in summary.md (mean, median, p90, p99). f_dist is not one: see fviz.evaluate.
 SUMMARY_METRICS = ("sed_median", "sampson_median", "pose_err_deg", "rot_err_deg", "trans_err_deg", "nsgd",
                    "gt_inlier_ratio", "epi_abs", "epi_sqr", "inlier_ratio", "epipole_err_deg", "seconds")
@@ -90,8 +113,10 @@ class Selection:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "Selection":
-        tup = lambda v: None if v is None else tuple(v)  # noqa: E731
-        return cls(**{**d, **{k: tup(d.get(k)) for k in ("kinds", "steps", "cams", "frames", "seeds")}})
+        """Each field checked against its type (:func:`fviz.run.schema.fields_of`)."""
+        from fviz.run.schema import fields_of
+
+        return cls(**fields_of(d, cls, "selection"))
 
     def source(self) -> "KittiSource | SyntheticSource":
         return SyntheticSource(self) if self.synthetic else KittiSource(self)
@@ -107,6 +132,17 @@ class Selection:
 
 def _range_text(r: tuple[int | None, int | None]) -> str:
     return f"{'' if r[0] is None else r[0]}:{'' if r[1] is None else r[1]}"
+
+
+_noted: set[str] = set()
+
+
+def _note_once(message: str) -> None:
+    import sys
+
+    if message not in _noted:
+        _noted.add(message)
+        print(message, file=sys.stderr)
 
 
 class KittiSource:
@@ -127,6 +163,13 @@ class KittiSource:
             self.ds.check_cam(cam)
         n = self.ds.frames_of(tuple(cams))
         start, end = self.sel.frames
+        if end is None:  # by default, only the frames every camera of the pairs has
+            common = min(self.ds.frame_counts[c] for c in cams)
+            if common < n:
+                short = min(cams, key=lambda c: self.ds.frame_counts[c])
+                _note_once(f"note: {self.ds.image_folder(short)} of {self.ds.name} has frames 0..{common - 1} only: "
+                           f"the {n - common} later frames of the other cameras are left out (select them with --frames)")
+                n = common
         start, end = 0 if start is None else start, n if end is None else end
         if not 0 <= start < end <= n:
             raise FvizError(f"--frames {_range_text(self.sel.frames)}: {self.ds.source} {self.ds.name} has frames 0..{n - 1} "
@@ -145,6 +188,9 @@ class KittiSource:
                     if frame + step < frames.stop:
                         ids.append(self.ds.pair_id(frame, kind, max(step, 1), self.sel.cams))
         if not ids:
+            if self.sel.frames == (None, None):
+                raise FvizError(f"--step {max(self.sel.steps)}: longer than the {len(frames)} frames of {self.ds.name} "
+                                f"({frames.start}..{frames.stop - 1}): no temporal pair fits")
             raise FvizError(f"--frames {_range_text(self.sel.frames)}: no pair fits in the range (step {max(self.sel.steps)})")
         return ids
 
@@ -254,6 +300,7 @@ class RunConfig:
     full: bool = False
     shard: tuple[int, int] | None = None
     baseline_F: dict[str, tuple[float, ...]] = field(default_factory=dict)  # spec -> 9 numbers, set by :func:`prepare`
+    estimator_timeout: float = ESTIMATOR_TIMEOUT_S  # seconds one estimator may take on one pair
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
@@ -262,12 +309,29 @@ class RunConfig:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "RunConfig":
-        opts = dict(d["options"], names=tuple(d["options"]["names"]))
-        return cls(
-            selection=Selection.from_dict(d["selection"]), options=EstimatorOptions(**opts), norm=d["norm"],
-            eval_threshold=d["eval_threshold"], full=d["full"], shard=None if d["shard"] is None else tuple(d["shard"]),
-            baseline_F={k: tuple(v) for k, v in (d.get("baseline_F") or {}).items()},
-        )
+        """run.json back to a configuration: every field checked against its type (a one-line FvizError
+        naming the field), then the selection, norm and thresholds as a run's flags are (:func:`check`)."""
+        from fviz.run.schema import convert
+
+        config = convert(d, cls, "")
+        if config.shard is not None and not 0 <= config.shard[0] < config.shard[1]:
+            raise FvizError(f"'shard' {list(config.shard)}: need 0 <= i < n")
+        if any(len(v) != 9 for v in config.baseline_F.values()):
+            raise FvizError("'baseline_F': 9 numbers per baseline expected")
+        check(config)
+        return config
+
+    def fingerprint(self, ref: dict[str, Any]) -> str:
+        """What made a record of the pair ``ref``: the settings every estimator's result depends on (feature
+        and robust options, norm, evaluation threshold) and the pair itself. A record whose fingerprint
+        differs was made by another configuration and is never reused."""
+        import hashlib
+        import json
+
+        d = self.comparable()
+        settings = {"options": d["options"], "norm": d["norm"], "eval_threshold": float(d["eval_threshold"]),
+                    "pair": {k: v for k, v in ref.items() if k != "name"}}
+        return hashlib.sha256(json.dumps(settings, sort_keys=True).encode()).hexdigest()[:20]
 
     def estimator_names(self) -> list[str]:
         """Display names, in order (``gt`` not included)."""
@@ -286,11 +350,11 @@ class RunConfig:
 
     def comparable(self) -> dict[str, Any]:
         """What must agree for two runs' records to be mixed (resume, merge): all but the estimator names
-        (pairs lacking one are evaluated again), the baselines' F (fixed by names and selection), the shard
-        and ``full`` (which only adds payload files)."""
+        (pairs lacking one are evaluated again), the baselines' F (fixed by names and selection), the shard,
+        ``full`` (which only adds payload files) and the estimators' time limit."""
         d = self.to_dict()
         d["options"] = {k: v for k, v in d["options"].items() if k != "names"}
-        for key in ("shard", "full", "baseline_F"):
+        for key in ("shard", "full", "baseline_F", "estimator_timeout"):
             d.pop(key)
         return d
 
@@ -364,25 +428,64 @@ def baseline_selections(sel: Selection, spec: str) -> list[Selection]:
 def baseline_fundamental(sel: Selection, spec: str) -> np.ndarray:
     """The constant F of a run-level baseline (:func:`baseline_selections`)."""
     sels = baseline_selections(sel, spec)
+    skipped: list[str] = []
 
     def all_gt():
         for s in sels:
             source = s.source()
             for pid in source.pair_ids():
-                yield source.ground_truth(pid)
+                try:
+                    yield source.ground_truth(pid)
+                except FvizError as exc:  # a pair without F (no motion): the baseline is the mean of the others
+                    skipped.append(str(exc))
 
-    return mean_fundamental(all_gt())
+    try:
+        F = mean_fundamental(all_gt())
+    except FvizError:
+        if not skipped:
+            raise
+        raise FvizError(f"--estimator {spec}: no pair of its selection has a ground-truth F ({skipped[0]})") from None
+    if skipped:
+        import sys
+
+        print(f"note: --estimator {spec}: {len(skipped)} pairs without a ground-truth F left out of the mean "
+              f"(first: {skipped[0]})", file=sys.stderr)
+    return F
+
+
+def check(config: RunConfig) -> None:
+    """One-line errors for settings out of range (the flags' own checks, again for a run.json)."""
+    import math
+
+    from fviz.geometry import NORMS
+
+    o = config.options
+    if config.norm not in NORMS:
+        raise FvizError(f"--norm {config.norm!r}: choose one of {', '.join(NORMS)}")
+    if config.eval_threshold <= 0:
+        raise FvizError(f"--eval-threshold {config.eval_threshold}: must be > 0")
+    if not (config.estimator_timeout > 0 and math.isfinite(config.estimator_timeout)):
+        raise FvizError(f"--estimator-timeout {config.estimator_timeout}: must be a number of seconds > 0")
+    check_options(o)
+
+
+def check_options(o: EstimatorOptions) -> None:
+    """The ranges of the estimator options (a keypoint count OpenCV accepts, a confidence in (0, 1], ...)."""
+    rules = (("--max-keypoints", o.max_keypoints, 1 <= o.max_keypoints <= MAX_KEYPOINTS, f"must be 1 .. {MAX_KEYPOINTS}"),
+             ("--ratio", o.ratio, 0 < o.ratio <= 1, "must be a number in (0, 1]"),
+             ("--threshold", o.threshold, o.threshold > 0, "must be a number > 0"),
+             ("--confidence", o.confidence, 0 < o.confidence <= 1, "must be a number in (0, 1]"),
+             ("--max-iters", o.max_iters, 1 <= o.max_iters <= 2**31 - 1, "must be 1 .. 2147483647"),
+             ("--seed", o.seed, 0 <= o.seed <= 2**31 - 1, "must be 0 .. 2147483647"))
+    for flag, value, ok, rule in rules:
+        if not ok:
+            raise FvizError(f"{flag} {value}: {rule}")
 
 
 def prepare(config: RunConfig) -> RunConfig:
     """Validate the estimators and the selection (one-line errors) and fix the constant-F baselines
     on the whole selection (not the shard: shards then merge to one run's results)."""
-    from fviz.geometry import NORMS
-
-    if config.norm not in NORMS:
-        raise FvizError(f"--norm {config.norm!r}: choose one of {', '.join(NORMS)}")
-    if config.eval_threshold <= 0:
-        raise FvizError(f"--eval-threshold {config.eval_threshold}: must be > 0")
+    check(config)
     names = config.options.names
     if len(set(names)) != len(names):
         raise FvizError(f"--estimator: repeated name in {', '.join(names)}")

@@ -7,7 +7,7 @@ import contextlib
 import os
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable
 
@@ -17,7 +17,10 @@ from fviz.errors import FvizError
 from fviz.evaluate import MIN_MATCHES
 from fviz.run.config import MIN_PAIRS_PER_WORKER, RESULTS_FILE, RunConfig, prepare, resolve_estimators
 from fviz.run.reports import write_reports
-from fviz.run.store import ResultStore, RunOutcome, locked, payload_path, read_config, save_payload, write_config
+from fviz.run.store import (
+    ResultStore, RunOutcome, locked, merge_record, payload_path, read_config, read_records, save_payload,
+    write_config,
+)
 
 
 def _message(exc: BaseException) -> str:
@@ -27,8 +30,9 @@ def _message(exc: BaseException) -> str:
 
 def _record(config: RunConfig, index: int, pid: PairId) -> dict[str, Any]:
     """A results.jsonl record before evaluation (``error`` and ``result`` still empty)."""
-    return {"index": index, "key": pid.name, "ref": pid.to_dict(), "estimators": config.estimator_names(),
-            "error": None, "result": None}
+    ref = pid.to_dict()
+    return {"index": index, "key": pid.name, "ref": ref, "fingerprint": config.fingerprint(ref),
+            "estimators": config.estimator_names(), "error": None, "result": None}
 
 
 class PairEvaluator:
@@ -68,27 +72,33 @@ class PairEvaluator:
 
         return [(name, resolved[name] if name in resolved else given(name)) for name in config.estimator_names()]
 
-    def evaluate(self, pid: PairId):
-        """(Pair, PairResult) with the full payload (what inspect and triage.rrd show)."""
+    def evaluate(self, pid: PairId, only: tuple[str, ...] | None = None):
+        """(Pair, PairResult) with the full payload (what inspect and triage.rrd show), of the estimators
+        named in ``only`` (display names; default all)."""
         from fviz.evaluate import evaluate_pair
 
         pair = self.source.load(pid)
-        result = evaluate_pair(pair, self.estimators, self.features, self.config.norm, self.config.eval_threshold,
-                               self.config.options.threshold, cache=self.cache)
+        estimators = [(n, fn) for n, fn in self.estimators if only is None or n in only]
+        result = evaluate_pair(pair, estimators, self.features, self.config.norm, self.config.eval_threshold,
+                               self.config.options.threshold, cache=self.cache, timeout=self.config.estimator_timeout)
         return pair, result
 
-    def record(self, index: int, pid: PairId) -> dict[str, Any]:
+    def record(self, index: int, pid: PairId, only: tuple[str, ...] | None = None) -> dict[str, Any]:
         """One line of results.jsonl; never raises for a bad pair (the error is in the record)."""
         t0, misses = time.perf_counter(), self.cache.misses
         rec = _record(self.config, index, pid)
+        if only is not None:
+            rec["estimators"] = [n for n in rec["estimators"] if n in only]
         try:
-            pair, result = self.evaluate(pid)
+            pair, result = self.evaluate(pid, only)
             rec["result"] = result.to_dict()
             if result.n_matches < MIN_MATCHES:
                 rec["error"] = f"only {result.n_matches} matches ({MIN_MATCHES} needed)"
             rec["diagnostics"] = self.diagnose(pair, result)
             if self.config.full:
-                save_payload(payload_path(self.out_dir, index), result)
+                path = payload_path(self.out_dir, index)
+                save_payload(path, result)
+                rec["payload_bytes"] = path.stat().st_size  # resume re-evaluates a pair whose payload is cut
         except WriteError:  # a full disk is not the pair's fault: the run stops (--resume finishes it)
             raise
         except Exception as exc:  # one bad pair must not stop the run
@@ -102,7 +112,7 @@ class PairEvaluator:
         self.cache.clear()
         self.cache.put(task.given)
         self.batched = task.batched
-        rec = self.record(task.index, task.pid)
+        rec = self.record(task.index, task.pid, task.only)
         for est in (rec["result"] or {}).get("estimators", []):
             if est["name"] in task.batched:
                 est["seconds"] = task.batched[est["name"]][1]  # its share of the batch, not the look-up
@@ -125,6 +135,7 @@ class PairTask:
     keep: tuple[str, ...] = ()
     detects: frozenset = frozenset()
     batched: dict = field(default_factory=dict)  # estimator name -> (F or error text, seconds), see DeepBatches
+    only: tuple[str, ...] | None = None  # the estimators to run (those the pair's record lacks); None: all
 
 
 class FrameSchedule:
@@ -503,8 +514,9 @@ def pool_size(workers: int, n_pairs: int) -> int:
 
 
 def _execute(config: RunConfig, todo: list[tuple[int, PairId]], pool: WorkerPool | None, out_dir: Path,
-             on_record: Callable[[dict], None], interrupts: Interrupts) -> None:
-    """Evaluate ``todo``, calling ``on_record`` in this process as each pair finishes.
+             on_record: Callable[[dict], None], interrupts: Interrupts, only: dict[str, tuple[str, ...]] | None = None) -> None:
+    """Evaluate ``todo``, calling ``on_record`` in this process as each pair finishes; a pair named in
+    ``only`` runs just those estimators.
 
     Without a pool (or for too few pairs): in this process. Else the pool, fed by a :class:`FrameSchedule`.
     After the first interrupt no pair starts; after the second, pairs in flight are abandoned.
@@ -516,6 +528,8 @@ def _execute(config: RunConfig, todo: list[tuple[int, PairId]], pool: WorkerPool
 
     def next_task() -> PairTask | None:
         task = schedule.next_task()
+        if task is not None:
+            task.only = (only or {}).get(task.pid.name)
         return deep.attach(task, schedule) if deep and task else task
 
     if workers <= 1:
@@ -644,22 +658,69 @@ def _preload_reports() -> None:
     threading.Thread(target=run, daemon=True, name="preload-reports").start()
 
 
+def _widened(config: RunConfig, out_dir: Path, resume: bool) -> RunConfig:
+    """On --resume, the run's estimators stay (results are per pair and estimator): those asked for
+    that it lacks are added, with a note when some were not asked for."""
+    old = read_config(out_dir) if resume else None
+    if old is None or old.comparable() != config.comparable():
+        return config
+    names = config.options.names
+    kept = tuple(n for n in old.options.names if n not in names)
+    if not kept:
+        return config
+    print(f"note: --resume keeps the run's other estimators ({', '.join(kept)}): results are per pair and estimator, "
+          "only the missing ones are computed", file=sys.stderr)
+    return replace(config, options=replace(config.options, names=old.options.names + tuple(n for n in names if n not in old.options.names)),
+                   baseline_F={**old.baseline_F, **config.baseline_F})
+
+
+def _todo(config: RunConfig, store: ResultStore, pairs: list[tuple[int, PairId]], out_dir: Path
+          ) -> tuple[list[tuple[int, PairId]], dict[str, tuple[str, ...]], dict[str, Any]]:
+    """(pairs to evaluate, pair name -> the estimators it lacks where it has a record with a result,
+    pair name -> that record's Entry). A --full pair whose payload is missing or not the size its record
+    says is evaluated again, and whole (its payload holds every estimator's inliers)."""
+    names = config.estimator_names()
+    latest = store.latest()
+    todo, only, partial = [], {}, {}
+    for i, pid in pairs:
+        entry = latest.get(pid.name)
+        if entry is not None and config.full and entry.has_result and not _payload_intact(payload_path(out_dir, i), entry):
+            entry = None
+        missing = tuple(n for n in names if entry is None or n not in entry.estimators)
+        if not missing:
+            continue
+        todo.append((i, pid))
+        if entry is not None and entry.has_result and len(missing) < len(names) and not config.full:
+            only[pid.name], partial[pid.name] = missing, entry
+    return todo, only, partial
+
+
+def _payload_intact(path: Path, entry) -> bool:
+    """Whether a --full payload is there and as long as when it was written (read only by the reports)."""
+    try:
+        size = path.stat().st_size
+    except OSError:
+        return False
+    return entry.payload_bytes is None or size == entry.payload_bytes
+
+
 def _run(config: RunConfig, out_dir: Path, pool: WorkerPool | None, resume: bool, progress: bool) -> RunOutcome:
-    config = prepare(config)
+    config = prepare(_widened(config, out_dir, resume))
     _check_resume(out_dir, config, resume)
     pairs = config.pairs()
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise FvizError(f"--out-dir {out_dir}: cannot create it ({exc.strerror})") from None
-    store = ResultStore(out_dir)
-    names = tuple(config.estimator_names())
-    done = {key for key, (_, _, ests) in store.latest().items() if ests == names}
-    todo = [(i, pid) for i, pid in pairs if pid.name not in done]
+    store = ResultStore(out_dir, config)
+    store.check_writable()
+    todo, only, partial = _todo(config, store, pairs, out_dir)
     write_config(out_dir, config)
     outcome = RunOutcome(total=len(pairs), reused=len(pairs) - len(todo), computed=0, interrupted=False, out_dir=out_dir)
 
     def on_record(rec: dict) -> None:
+        if rec["key"] in partial:
+            rec = merge_record(next(read_records([partial[rec["key"]]])), rec, config.estimator_names())
         store.append(rec)
         outcome.computed += 1
         outcome.failed += rec["error"] is not None
@@ -672,7 +733,7 @@ def _run(config: RunConfig, out_dir: Path, pool: WorkerPool | None, resume: bool
         with _progress(progress) as bar:
             bar_task = bar.add_task("eval", total=len(pairs), completed=outcome.reused)
             try:
-                _execute(config, todo, pool, out_dir, on_record, interrupts)
+                _execute(config, todo, pool, out_dir, on_record, interrupts, only)
             except KeyboardInterrupt:
                 pass
             except WriteError as exc:

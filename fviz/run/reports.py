@@ -22,7 +22,7 @@ from fviz.run.config import (
     RUN_FILE, SUMMARY_FILE, SUMMARY_JSON, SUMMARY_METRICS, TEXT_COLUMNS, RunConfig,
 )
 from fviz.run.store import (
-    ResultStore, RunOutcome, load_payload, locked, payload_path, read_config, read_records, record_rows,
+    ResultStore, RunOutcome, holder_of, load_payload, locked, payload_ok, payload_path, read_config, read_records, record_rows,
     result_from_record, write_config,
 )
 
@@ -37,7 +37,7 @@ def _columns(rows_iter: Iterable[dict[str, Any]]) -> list[str]:
 
 def iter_rows(out_dir: Path, config: RunConfig) -> Iterator[tuple[dict[str, Any], PairResult, list[dict[str, Any]]]]:
     """(record, its PairResult, its CSV rows) of each pair, by index."""
-    for rec in ResultStore(out_dir).records():
+    for rec in ResultStore(out_dir, config).records():
         result = result_from_record(rec, config)
         yield rec, result, record_rows(rec, result)
 
@@ -431,14 +431,14 @@ def write_recording(path: Path, out_dir: Path, config: RunConfig) -> Path:
     names = config.series_names()
     sizes = None
     if config.full:
-        first = next((r["result"]["pair"] for r in ResultStore(out_dir).records() if r.get("result")), None)
+        first = next((r["result"]["pair"] for r in ResultStore(out_dir, config).records() if r.get("result")), None)
         if first is not None:
             sizes = (tuple(first["size_a"]), tuple(first["size_b"]))
     with RecordingWriter(path, "fviz-eval", L.blueprint(names, sizes, single_pair=False)) as w:
         log_static(w.rec, names, series=True, legend=sizes is not None)
         for rec, result, _ in iter_rows(out_dir, config):
             payload = payload_path(out_dir, rec["index"])
-            if source is not None and rec.get("result") is not None and payload.is_file():
+            if source is not None and rec.get("result") is not None and payload_ok(payload):
                 pair = source.load(PairId(**{k: v for k, v in rec["ref"].items() if k != "name"}))
                 log_pair(w.rec, rec["index"], pair, load_payload(payload, result), single_pair=False)
             else:
@@ -457,6 +457,9 @@ def merge_runs(dirs: list[Path], out_dir: Path) -> RunOutcome:
         c = read_config(d)
         if c is None or not (Path(d) / RESULTS_FILE).is_file():
             raise FvizError(f"merge: {d} holds no fviz run ({RUN_FILE} and {RESULTS_FILE} expected)")
+        holder = holder_of(Path(d))
+        if holder is not None:
+            raise FvizError(f"merge: {d} is still being written by {holder}: merge it when that run has finished")
         configs.append(c)
     first = configs[0]
     for d, c in zip(dirs, configs):
@@ -471,15 +474,14 @@ def _merge_into(dirs: list[Path], out_dir: Path, config: RunConfig) -> RunOutcom
 
     if (out_dir / RESULTS_FILE).exists():
         raise FvizError(f"--out-dir {out_dir} already holds a run: choose an empty folder")
-    latest: dict[str, tuple[Path, int, int]] = {}  # key -> (results file, offset, index); later dirs win
+    latest = {}  # key -> Entry; later dirs win
     for d in dirs:
-        store = ResultStore(d)
-        latest.update({key: (store.path, off, index) for key, (off, index, _) in store.latest().items()})
-    store, failed = ResultStore(out_dir), 0
+        latest.update(ResultStore(d, config).latest())
+    store, failed = ResultStore(out_dir, config), 0
     for rec in read_records(list(latest.values())):
         store.append(rec)
         failed += rec["error"] is not None
-        payload = payload_path(Path(latest[rec["key"]][0]).parent, rec["index"])
+        payload = payload_path(latest[rec["key"]].path.parent, rec["index"])
         if payload.is_file():
             with replacing(payload_path(out_dir, rec["index"])) as tmp:
                 shutil.copyfile(payload, tmp)

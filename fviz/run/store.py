@@ -4,8 +4,10 @@ optional per-pair payloads of ``--full``; records back to PairResult objects and
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import os
+import stat
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -32,6 +34,15 @@ def save_payload(path: Path, result: PairResult) -> None:
             arrays[f"inliers_{i}"], arrays[f"residuals_{i}"] = r.inliers, r.residuals_px
     with replacing(path) as tmp, open(tmp, "wb") as f:
         np.savez(f, **arrays)
+
+
+def payload_ok(path: Path) -> bool:
+    """Whether a --full payload can be read back (a truncated or foreign file cannot)."""
+    try:
+        with np.load(path) as z:
+            return all(k in z.files for k in ("x_a", "x_b", "eval_mask")) and len(z["x_a"]) == len(z["eval_mask"])
+    except Exception:  # BadZipFile, OSError, ValueError, EOFError, pickled objects refused ...
+        return False
 
 
 def load_payload(path: Path, result: PairResult) -> PairResult:
@@ -77,52 +88,147 @@ def result_from_record(rec: dict[str, Any], config: RunConfig) -> PairResult:
     )
 
 
+def merge_record(old: dict[str, Any], new: dict[str, Any], order: list[str]) -> dict[str, Any]:
+    """The record of a pair whose ``old`` record (with a result) lacked some estimators of ``order``
+    (display names) and ``new`` computed them: old's estimators kept, new's added, in ``order``. A pair
+    that failed as a whole now gets its error on the added estimators only."""
+    from fviz.evaluate import GT_NAME
+
+    res = old["result"]
+    have = {e["name"]: e for e in res["estimators"]}
+    got = {e["name"]: e for e in (new.get("result") or {}).get("estimators", [])}
+    names = [n for n in order if n in have or n in got or n in new["estimators"]]
+    names += [n for n in old["estimators"] if n not in names]
+    failed = EstimatorResult("", None, {}, 0.0, f"pair failed when this estimator was added: {new['error']}").to_dict()
+    ests = [have[GT_NAME]] + [have.get(n) or got.get(n) or {**failed, "name": n} for n in names]
+    diag_old, diag_new = old.get("diagnostics"), new.get("diagnostics")
+    diag = diag_old if not (diag_old and diag_new) else {
+        **diag_old, "estimators": {**diag_new["estimators"], **diag_old["estimators"]}}
+    return {**old, "estimators": names, "result": {**res, "estimators": ests}, "diagnostics": diag,
+            "fingerprint": new["fingerprint"], "seconds": old.get("seconds", 0.0) + new.get("seconds", 0.0),
+            **{k: new[k] for k in ("detections", "finished_at", "worker") if k in new}}
+
+
 def record_rows(rec: dict[str, Any], result: PairResult) -> list[dict[str, Any]]:
     """CSV rows of a record: PairResult.rows() with the pair's index first and its pair-level error."""
     return [{"index": rec["index"], **row, "pair_error": rec["error"] or ""} for row in result.rows()]
 
 
 _CUT = object()
-_RECORD_KEYS = {"key": str, "index": int, "estimators": list, "ref": dict}
-_RESULT_KEYS = {"pair": dict, "norm": str, "eval_threshold_px": (int, float), "F_gt": list, "n_keypoints": list,
-                "n_matches": int, "n_eval": int, "timings": dict, "estimators": list}
-_ESTIMATOR_KEYS = {"name": str, "metrics": dict, "seconds": (int, float)}
 _warned: set[str] = set()
 
 
-def _type_problem(d: dict, keys: dict[str, Any], where: str) -> str | None:
+def _num(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def _array_problem(v: Any, shape: tuple[int, ...], where: str, nullable: bool = True) -> str | None:
+    """Why ``v`` is not a finite numeric array of ``shape`` (or null where allowed), or None."""
+    if v is None:
+        return None if nullable else f"'{where}' is null"
+    try:
+        a = np.array(v, dtype=np.float64)
+    except (TypeError, ValueError):
+        return f"'{where}' is not numbers"
+    if a.shape != shape:
+        return f"'{where}' has shape {a.shape}, expected {shape}"
+    return None if np.isfinite(a).all() else f"'{where}' is not finite"
+
+
+def _typed_problem(d: dict, keys: dict[str, Any], where: str) -> str | None:
+    """Why the entries ``keys`` (name -> predicate, or type) of ``d`` do not hold, or None."""
     for key, kind in keys.items():
         if key not in d:
             return f"no '{where}{key}'"
-        if not isinstance(d[key], kind) or isinstance(d[key], bool):
+        ok = kind(d[key]) if callable(kind) and not isinstance(kind, type) else (
+            isinstance(d[key], kind) and not isinstance(d[key], bool))
+        if not ok:
             return f"'{where}{key}' is {type(d[key]).__name__}"
     return None
 
 
-def record_problem(rec: Any) -> str | None:
-    """What keeps a parsed results.jsonl line from being a pair record, or None."""
-    if not isinstance(rec, dict):
-        return f"{type(rec).__name__}, not an object" if rec is not None else "null"
-    problem = _type_problem(rec, _RECORD_KEYS, "")
-    if problem:
-        return problem
-    if rec["index"] < 0 or not all(isinstance(n, str) for n in rec["estimators"]):
-        return "bad 'index' or 'estimators'"
-    result, error = rec.get("result"), rec.get("error")
-    if error is not None and not isinstance(error, str):
-        return f"'error' is {type(error).__name__}"
-    if result is None:
-        return None if error else "neither 'result' nor 'error'"
+_opt_str = lambda v: v is None or isinstance(v, str)  # noqa: E731
+_num_or_none = lambda v: v is None or _num(v)  # noqa: E731
+_RECORD_KEYS = {"key": str, "index": lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= 0,
+                "estimators": lambda v: isinstance(v, list) and all(isinstance(n, str) for n in v),
+                "ref": dict, "error": _opt_str}
+_RESULT_KEYS = {"pair": dict, "norm": str, "eval_threshold_px": _num, "F_gt": list,
+                "n_keypoints": lambda v: isinstance(v, list) and len(v) == 2 and all(_num(n) for n in v),
+                "n_matches": int, "n_eval": int,
+                "timings": lambda v: isinstance(v, dict) and all(_num(x) for x in v.values()),
+                "estimators": lambda v: isinstance(v, list) and all(isinstance(e, dict) for e in v),
+                "notes": lambda v: isinstance(v, list) and all(isinstance(n, str) for n in v)}
+_ESTIMATOR_KEYS = {"name": str, "seconds": _num, "error": _opt_str,
+                   "metrics": lambda v: isinstance(v, dict) and all(_num_or_none(x) for x in v.values())}
+_DIAGNOSTIC_NUMBERS = ("n_inliers", "homography_fraction", "gt_agree", "gt_sed_median_inliers")  # what triage reads
+_DIAGNOSTIC_KEYS = {"n_matches": _num, "baseline_m": _num, "rotation_fraction": _num_or_none,
+                    "estimators": lambda v: isinstance(v, dict) and all(
+                        isinstance(e, dict) and all(_num_or_none(e.get(k)) for k in _DIAGNOSTIC_NUMBERS) for e in v.values())}
+
+
+def _ref_problem(rec: dict) -> str | None:
+    """Why ``ref`` does not name the pair ``key``, or None."""
+    from dataclasses import fields
+
+    from fviz.data.pair import PairId
+
+    ref = rec["ref"]
+    known = {f.name for f in fields(PairId)}
+    try:
+        pid = PairId(**{k: v for k, v in ref.items() if k in known})
+        ok = pid.name == rec["key"]
+        ints = all(isinstance(getattr(pid, f), int) and not isinstance(getattr(pid, f), bool)
+                   for f in ("frame_a", "frame_b", "cam_a", "cam_b") if f in known)
+        strs = all(isinstance(getattr(pid, f), str) for f in ("source", "sequence", "kind") if f in known)
+    except (TypeError, ValueError) as exc:
+        return f"'ref' is not a pair ({exc})"
+    return None if ok and ints and strs else "'ref' does not name the pair of 'key'"
+
+
+def _result_problem(rec: dict) -> str | None:
+    result = rec["result"]
     if not isinstance(result, dict):
         return f"'result' is {type(result).__name__}"
-    problem = _type_problem(result, _RESULT_KEYS, "result.")
+    problem = _typed_problem(result, _RESULT_KEYS, "result.") or _array_problem(result["F_gt"], (3, 3), "result.F_gt", False)
     if problem:
         return problem
+    if any(result["pair"].get(k) != v for k, v in rec["ref"].items()):
+        return "'result.pair' is not the pair of 'ref'"
+    for size in ("size_a", "size_b"):
+        if size in result["pair"] and not (isinstance(result["pair"][size], list) and len(result["pair"][size]) == 2
+                                           and all(isinstance(n, int) for n in result["pair"][size])):
+            return f"'result.pair.{size}' is not [width, height]"
+    names = []
     for e in result["estimators"]:
-        problem = _type_problem(e, _ESTIMATOR_KEYS, "result.estimators[].") if isinstance(e, dict) else "an estimator is not an object"
-        if problem or "F" not in e or "error" not in e:
-            return problem or "no 'result.estimators[].F' or '.error'"
+        problem = (_typed_problem(e, _ESTIMATOR_KEYS, "result.estimators[].") or _array_problem(e.get("F"), (3, 3), "result.estimators[].F")
+                   or _array_problem(e.get("R"), (3, 3), "result.estimators[].R") or _array_problem(e.get("t"), (3,), "result.estimators[].t"))
+        if problem:
+            return problem
+        names.append(e["name"])
+    if names[:1] != ["gt"] or len(set(names)) != len(names) or names[1:] != rec["estimators"]:
+        return "'result.estimators' are not the record's 'estimators'"
     return None
+
+
+def record_problem(rec: Any) -> str | None:
+    """What keeps a parsed results.jsonl line from being a pair record, or None: every field is checked
+    (type, shape, finiteness; ``ref`` names the pair of ``key``; the result's estimators are the
+    record's), so what reads records later (reports, resume, triage, eval.rrd) can trust them."""
+    if not isinstance(rec, dict):
+        return f"{type(rec).__name__}, not an object" if rec is not None else "null"
+    problem = _typed_problem(rec, _RECORD_KEYS, "") or _ref_problem(rec)
+    if problem:
+        return problem
+    if "fingerprint" in rec and not isinstance(rec["fingerprint"], str):
+        return "'fingerprint' is not a string"
+    diag = rec.get("diagnostics")
+    if diag is not None:
+        problem = _typed_problem(diag, _DIAGNOSTIC_KEYS, "diagnostics.") if isinstance(diag, dict) else "'diagnostics' is not an object"
+        if problem:
+            return problem
+    if rec.get("result") is None:
+        return None if rec["error"] else "neither 'result' nor 'error'"
+    return _result_problem(rec)
 
 
 def _warn_once(message: str) -> None:
@@ -131,12 +237,56 @@ def _warn_once(message: str) -> None:
         print(message, file=sys.stderr)
 
 
-class ResultStore:
-    """results.jsonl: append-only, one record per line, flushed per pair."""
+@dataclass(frozen=True)
+class Entry:
+    """Where a pair's latest usable record is, and what it holds."""
 
-    def __init__(self, out_dir: Path):
+    path: Path
+    offset: int
+    index: int  # the pair's place in the run's selection
+    estimators: tuple[str, ...]
+    has_result: bool  # False: the pair failed as a whole
+    payload_bytes: int | None = None  # size of its --full payload when written
+
+
+class ResultStore:
+    """results.jsonl: append-only, one record per line, flushed per pair.
+
+    Reading keeps only the records that belong to ``config`` (default: the run.json beside it): a pair of
+    its selection, and a fingerprint (:meth:`RunConfig.fingerprint`) of its settings and that pair. Other
+    records (another configuration, a pair outside the selection, no fingerprint) are ignored, with one
+    warning that counts them."""
+
+    def __init__(self, out_dir: Path, config: RunConfig | None = None):
         self.path = Path(out_dir) / RESULTS_FILE
         self._file = None
+        self._config = config
+        self._indices: dict[str, int] | None = None
+
+    @property
+    def config(self) -> RunConfig | None:
+        if self._config is None:
+            self._config = read_config(self.path.parent)
+        return self._config
+
+    def indices(self) -> dict[str, int] | None:
+        """Pair name -> index in the whole selection of the configuration (None without one)."""
+        if self._indices is None and self.config is not None:
+            self._indices = {pid.name: i for i, pid in enumerate(self.config.selection.source().pair_ids())}
+        return self._indices
+
+    def check_writable(self) -> None:
+        """A one-line error unless results.jsonl is a regular file (or absent): never a symlink, whose
+        target the appends would grow."""
+        try:
+            mode = os.lstat(self.path).st_mode
+        except FileNotFoundError:
+            return
+        if stat.S_ISLNK(mode):
+            raise FvizError(f"{self.path} is a symlink: fviz appends records only to a regular file in the run folder "
+                            "(replace the link by a copy of its target)")
+        if not stat.S_ISREG(mode):
+            raise FvizError(f"{self.path} is not a regular file")
 
     def _scan(self) -> Iterator[tuple[int, dict[str, Any]]]:
         """(byte offset, record) of every complete, valid line. A line that is JSON but not a record
@@ -159,13 +309,32 @@ class ResultStore:
                         yield offset, rec
                 offset += len(line)
 
-    def latest(self) -> dict[str, tuple[int, int, tuple[str, ...]]]:
-        """key -> (offset, index, estimator names) of each pair's last record."""
-        return {rec["key"]: (off, rec["index"], tuple(rec["estimators"])) for off, rec in self._scan()}
+    def latest(self) -> dict[str, Entry]:
+        """key -> the Entry of each pair's last record that belongs to the configuration."""
+        config, indices = self.config, self.indices()
+        out: dict[str, Entry] = {}
+        other = outside = 0
+        for off, rec in self._scan():
+            key = rec["key"]
+            if indices is not None and key not in indices:
+                outside += 1
+                continue
+            if config is not None and rec.get("fingerprint") != config.fingerprint(rec["ref"]):
+                other += 1
+                continue
+            size = rec.get("payload_bytes")
+            out[key] = Entry(self.path, off, indices[key] if indices else rec["index"], tuple(rec["estimators"]),
+                             rec.get("result") is not None, size if isinstance(size, int) else None)
+        if other or outside:
+            parts = [f"{other} made with other settings (or without a fingerprint)"] * bool(other)
+            parts += [f"{outside} of pairs outside the run's selection"] * bool(outside)
+            _warn_once(f"warning: {self.path}: {other + outside} records ignored ({', '.join(parts)}); "
+                       "only records of this run's pairs and settings are used")
+        return out
 
     def records(self) -> Iterator[dict[str, Any]]:
-        """Each pair's last record, by index, read one at a time."""
-        yield from read_records([(self.path, off, index) for off, index, _ in self.latest().values()])
+        """Each pair's last usable record, by index, read one at a time."""
+        yield from read_records(list(self.latest().values()))
 
     def append(self, rec: dict[str, Any]) -> None:
         """Append one record (unbuffered: a failed write leaves nothing pending; a cut line is ignored)."""
@@ -173,7 +342,9 @@ class ResultStore:
         try:
             if self._file is None:
                 self.path.parent.mkdir(parents=True, exist_ok=True)
-                self._file = open(self.path, "ab", buffering=0)
+                self.check_writable()
+                fd = os.open(self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT | os.O_CLOEXEC | os.O_NOFOLLOW, 0o666)
+                self._file = os.fdopen(fd, "ab", buffering=0)
                 if self._file.tell() > 0 and not _ends_with_newline(self.path):
                     line = b"\n" + line  # a line cut by a crash stays an (ignored) line of its own
             view = memoryview(line)
@@ -188,14 +359,14 @@ class ResultStore:
             self._file = None
 
 
-def read_records(entries: list[tuple[Path, int, int]]) -> Iterator[dict[str, Any]]:
-    """Records at (file, offset, index) entries, in index order, one at a time."""
+def read_records(entries: list[Entry]) -> Iterator[dict[str, Any]]:
+    """The records of ``entries``, in index order, one at a time (``index`` set to the entry's)."""
     handles: dict[Path, Any] = {}
     try:
-        for path, off, _ in sorted(entries, key=lambda e: e[2]):
-            f = handles.get(path) or handles.setdefault(path, open(path, "rb"))
-            f.seek(off)
-            yield json.loads(f.readline())
+        for e in sorted(entries, key=lambda e: e.index):
+            f = handles.get(e.path) or handles.setdefault(e.path, open(e.path, "rb"))
+            f.seek(e.offset)
+            yield {**json.loads(f.readline()), "index": e.index}
     finally:
         for f in handles.values():
             f.close()
@@ -212,7 +383,13 @@ def read_config(out_dir: Path) -> RunConfig | None:
     if not path.is_file():
         return None
     try:
-        return RunConfig.from_dict(json.loads(path.read_text()))
+        doc = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise FvizError(f"{path}: not an fviz run configuration ({getattr(exc, 'strerror', None) or exc})") from None
+    try:
+        return RunConfig.from_dict(doc)
+    except FvizError as exc:  # a field of the wrong type or out of range, named
+        raise FvizError(f"{path}: {exc}") from None
     except (ValueError, KeyError, TypeError) as exc:
         raise FvizError(f"{path}: not an fviz run configuration ({exc})") from None
 
@@ -237,7 +414,23 @@ def _holder_text(fd: int) -> str:
         return ""
 
 
-def _acquire(out_dir: Path) -> int:
+def open_lock_file(path: Path, flags: int, flag: str = "--out-dir") -> int:
+    """A descriptor of the lock file ``path``, never through a symlink, and only of a regular file
+    (a planted link or FIFO is refused: the holder's line is written into what is opened)."""
+    from fviz.atomic import describe_os_error
+
+    try:
+        fd = os.open(path, flags | os.O_CLOEXEC | os.O_NOFOLLOW | os.O_NONBLOCK, 0o644)
+    except OSError as exc:
+        why = "it is a symlink" if exc.errno == errno.ELOOP else describe_os_error(exc)
+        raise FvizError(f"{flag} {path.parent}: cannot lock it ({path.name}: {why}; fviz locks only a regular file)") from None
+    if not stat.S_ISREG(os.fstat(fd).st_mode):
+        os.close(fd)
+        raise FvizError(f"{flag} {path.parent}: cannot lock it ({path.name} is not a regular file)")
+    return fd
+
+
+def _acquire(out_dir: Path, flag: str = "--out-dir") -> int:
     """A descriptor of ``out_dir/.fviz.lock`` holding an exclusive flock, the holder written into it."""
     import fcntl
     import shlex
@@ -245,20 +438,15 @@ def _acquire(out_dir: Path) -> int:
     import sys
     from datetime import datetime, timezone
 
-    from fviz.atomic import describe_os_error
-
     path = out_dir / LOCK_FILE
     while True:
-        try:
-            fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
-        except OSError as exc:
-            raise FvizError(f"--out-dir {out_dir}: cannot lock it ({describe_os_error(exc)})") from None
+        fd = open_lock_file(path, os.O_RDWR | os.O_CREAT, flag)
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
             holder = _holder_text(fd) or "another process"
             os.close(fd)
-            raise FvizError(f"--out-dir {out_dir} is in use by {holder}: wait for it or choose another folder") from None
+            raise FvizError(f"{flag} {out_dir} is in use by {holder}: wait for it or choose another folder") from None
         try:
             if os.fstat(fd).st_ino == os.stat(path).st_ino:
                 break
@@ -267,7 +455,7 @@ def _acquire(out_dir: Path) -> int:
         os.close(fd)  # the holder removed the file between our open and flock: lock the new one
     stale = _holder_text(fd)
     if stale:
-        print(f"note: --out-dir {out_dir}: recovered the lock left by {stale}, which is no longer running",
+        print(f"note: {flag} {out_dir}: recovered the lock left by {stale}, which is no longer running",
               file=sys.stderr)
     holder = {"pid": os.getpid(), "host": socket.gethostname(), "command": shlex.join(["fviz", *sys.argv[1:]]),
               "since": datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M:%S UTC")}
@@ -276,9 +464,28 @@ def _acquire(out_dir: Path) -> int:
     return fd
 
 
+def holder_of(out_dir: Path) -> str | None:
+    """Who holds ``out_dir``'s lock now ("pid ... (COMMAND)"), or None when nobody does (this process's
+    own holds excepted)."""
+    import fcntl
+
+    path = Path(out_dir) / LOCK_FILE
+    if Path(out_dir).resolve() in _held or not os.path.lexists(path):
+        return None
+    fd = open_lock_file(path, os.O_RDONLY)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+        return None
+    except BlockingIOError:
+        return _holder_text(fd) or "another process"
+    finally:
+        os.close(fd)
+
+
 @contextlib.contextmanager
-def locked(out_dir: str | Path) -> Iterator[None]:
-    """Hold the run folder while eval, triage or merge writes into it (re-entrant within a process).
+def locked(out_dir: str | Path, flag: str = "--out-dir") -> Iterator[None]:
+    """Hold the run folder while eval, triage, merge or train writes into it (re-entrant within a process;
+    ``flag`` names the folder in messages).
 
     Another fviz run into it exits with a one-line error naming the holder (pid, host, command, start
     time). The kernel releases the flock when the holder dies, however it dies: the next run takes over
@@ -290,7 +497,7 @@ def locked(out_dir: str | Path) -> Iterator[None]:
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        raise FvizError(f"--out-dir {out_dir}: cannot create it ({describe_os_error(exc)})") from None
+        raise FvizError(f"{flag} {out_dir}: cannot create it ({describe_os_error(exc)})") from None
     key = out_dir.resolve()
     if key in _held:
         _held[key] += 1
@@ -299,7 +506,7 @@ def locked(out_dir: str | Path) -> Iterator[None]:
         finally:
             _held[key] -= 1
         return
-    fd = _acquire(out_dir)
+    fd = _acquire(out_dir, flag)
     _held[key] = 1
     try:
         yield
