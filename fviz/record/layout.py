@@ -158,6 +158,7 @@ COMPARED_METRICS = (
     ("rot_err_deg", "rotation error (deg)"),
     ("trans_err_deg", "translation error (deg)"),
     ("nsgd", "NSGD (FM-Bench)"),
+    ("agreement_nsgd", "NSGD to the other estimators (no ground truth)"),
 )
 BAR_WIDTH, BAR_PITCH, BAR_HEAD, BAR_LABEL_X = 360.0, 24.0, 30.0, 450.0
 CHART_BACKGROUND = (32, 32, 36)  # charts and plots: dark, so that the ground truth's white shows in any theme

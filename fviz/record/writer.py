@@ -197,29 +197,57 @@ def _fmt(v: float | None, digits: int = 3) -> str:
 
 
 SUMMARY_COLUMNS = (("sed_median", "SED px"), ("rot_err_deg", "rot °"), ("trans_err_deg", "trans °"),
-                   ("nsgd", "NSGD"), ("inlier_ratio", "inliers"))
+                   ("nsgd", "NSGD"), ("inlier_ratio", "inliers"), ("agreement_nsgd", "NSGD to others"))
+
+_GROUND_TRUTH = {"pose": "the relative pose", "F": "a given F", "correspondences": "F fitted to the ground-truth correspondences"}
+
+
+def _pair_sentence(result: PairResult) -> str:
+    """What the pair is and what its metrics are computed on (KITTI frames and cameras, or a user's images)."""
+    p = result.pair
+    if "image_a" not in p:
+        return (f"{p['kind']} pair, frame {p['frame_a']} cam {p['cam_a']} → frame {p['frame_b']} cam {p['cam_b']}; "
+                f"ground truth good to ~{p['gt_accuracy_px']} px. {result.n_matches} matches, {result.n_eval} within "
+                f"{result.eval_threshold_px:g} px of the GT lines (the evaluation matches).")
+    head = f"`{p['image_a']}` → `{p['image_b']}` ({p['source']}); "
+    gt = p.get("ground_truth", "none")
+    if gt == "none":
+        return head + (f"**no ground truth**: the estimators are compared with each other. {result.n_matches} matches; "
+                       "SED and inliers are over all of them, *NSGD to others* is the median NSGD of an F to the "
+                       "other estimators' (table below). No GT-based metric is computed.")
+    if result.eval_points == "gt-matches":
+        where = f"{result.n_eval} ground-truth correspondences (the evaluation matches)"
+    else:
+        where = f"{result.n_eval} within {result.eval_threshold_px:g} px of the GT lines (the evaluation matches)"
+    accuracy = "" if p.get("gt_accuracy_px") is None else f", good to ~{p['gt_accuracy_px']} px"
+    return head + f"ground truth: {_GROUND_TRUTH.get(gt, gt)}{accuracy}. {result.n_matches} matches, {where}."
 
 
 def pair_markdown(result: PairResult, probe_steps: int = 0) -> str:
     """The summary panel: the pair, a compact table (every metric is in the JSON), hints, F matrices last."""
     p = result.pair
+    columns = [c for c in SUMMARY_COLUMNS if any(c[0] in r.metrics for r in result.estimators)] or list(SUMMARY_COLUMNS[:1])
     lines = [
         f"**{p['name']}**",
         "",
-        f"{p['kind']} pair, frame {p['frame_a']} cam {p['cam_a']} → frame {p['frame_b']} cam {p['cam_b']}; "
-        f"ground truth good to ~{p['gt_accuracy_px']} px. {result.n_matches} matches, {result.n_eval} within "
-        f"{result.eval_threshold_px:g} px of the GT lines (the evaluation matches).",
+        _pair_sentence(result),
         "",
-        "| F | " + " | ".join(t for _, t in SUMMARY_COLUMNS) + " | s |",
-        "|---|" + "--:|" * (len(SUMMARY_COLUMNS) + 1),
+        "| F | " + " | ".join(t for _, t in columns) + " | s |",
+        "|---|" + "--:|" * (len(columns) + 1),
     ]
     for r in result.estimators:
         if r.error:
-            lines.append(f"| {r.name} | failed |" + " |" * len(SUMMARY_COLUMNS))
+            lines.append(f"| {r.name} | failed |" + " |" * len(columns))
         else:
-            lines.append(f"| {r.name} | " + " | ".join(_fmt(r.metrics.get(k)) for k, _ in SUMMARY_COLUMNS)
+            lines.append(f"| {r.name} | " + " | ".join(_fmt(r.metrics.get(k)) for k, _ in columns)
                          + f" | {r.seconds:.2f} |")
     lines.append("")
+    if result.agreement:
+        names = result.agreement["names"]
+        lines += ["NSGD between the estimators (0 = the same epipolar geometry, FM-Bench's measure):", "",
+                  "| | " + " | ".join(names) + " |", "|---|" + "--:|" * len(names)]
+        lines += [f"| {a} | " + " | ".join(_fmt(v) for v in row) + " |" for a, row in zip(names, result.agreement["matrix"])]
+        lines.append("")
     lines += [f"- **{r.name} failed**: {r.error}" for r in result.estimators if r.error]
     lines += [f"- {n}" for n in result.notes]
     lines.append("- One tab per estimator: its keypoints coloured by its residual (viridis, yellow = ≥ "

@@ -32,7 +32,8 @@ MIN_PAIRS_PER_WORKER = 4  # fewer pairs than this per process: starting one cost
 CACHE_ITEMS = 16  # features kept per worker, plus 2 per frame of the largest step (frame-major order)
 
 # Columns of the CSV that are text or integers; every other column is a float.
-TEXT_COLUMNS = ("name", "source", "root", "sequence", "kind", "estimator", "norm", "error", "pair_error")
+TEXT_COLUMNS = ("name", "source", "root", "sequence", "kind", "estimator", "norm", "error", "pair_error",
+                "image_a", "image_b", "path_a", "path_b", "ground_truth")
 INT_COLUMNS = ("index", "frame_a", "frame_b", "cam_a", "cam_b", "n_matches", "n_eval")
 # Metrics summarised per estimator in summary.md (mean, median, p90, p99). f_dist is not one: see fviz.evaluate.
 SUMMARY_METRICS = ("sed_median", "sampson_median", "pose_err_deg", "rot_err_deg", "trans_err_deg", "nsgd",
@@ -62,8 +63,27 @@ class Selection:
     frames: tuple[int | None, int | None] = (None, None)
     synthetic: bool = False
     seeds: tuple[int, int] | None = None
+    pairs: str | None = None  # a user's pairs file (fviz.data.pairsfile), or the pairs to take of --colmap
+    images: str | None = None
+    colmap: str | None = None
+    min_shared: int = 100
+    matches: str | None = None  # the user's matches for every pair (fviz.data.correspondences)
+    gt_matches: str | None = None
+
+    @property
+    def user(self) -> bool:
+        """Whether the pairs are a user's (--pairs / --colmap) rather than KITTI or synthetic ones."""
+        return self.pairs is not None or self.colmap is not None
 
     def __post_init__(self):
+        if self.user:
+            others = {"--kitti-root": self.kitti_root, "--sequence": self.sequence, "--drive": self.drive,
+                      "--cams": self.cams, "--synthetic": self.synthetic or None, "--seeds": self.seeds,
+                      "--step": self.steps != (1,) or None, "--pair": self.kinds != ("stereo",) or None}
+            given = [flag for flag, v in others.items() if v is not None]
+            if given:
+                raise FvizError(f"{given[0]}: not with --pairs / --colmap (their pairs are listed; select lines with --frames A:B)")
+            return
         for kind in self.kinds:
             if kind not in PAIR_KINDS:
                 raise FvizError(f"--pair {kind!r}: choose one of {', '.join(PAIR_KINDS)}")
@@ -93,10 +113,26 @@ class Selection:
         tup = lambda v: None if v is None else tuple(v)  # noqa: E731
         return cls(**{**d, **{k: tup(d.get(k)) for k in ("kinds", "steps", "cams", "frames", "seeds")}})
 
-    def source(self) -> "KittiSource | SyntheticSource":
-        return SyntheticSource(self) if self.synthetic else KittiSource(self)
+    def source(self):
+        """The pairs' source: KittiSource, SyntheticSource or a user's (fviz.data.sources), with the user's
+        matches and ground-truth correspondences attached when given."""
+        if self.user:
+            from fviz.data.sources import user_source
+
+            source = user_source(self.pairs, self.images, self.colmap, self.min_shared, self.frames)
+        else:
+            source = SyntheticSource(self) if self.synthetic else KittiSource(self)
+        if self.matches or self.gt_matches:
+            from fviz.data.sources import WithCorrespondences
+
+            source = WithCorrespondences(source, self.matches, self.gt_matches)
+        return source
 
     def describe(self) -> str:
+        if self.user:
+            what = f"COLMAP model {self.colmap}" if self.colmap else f"pairs file {self.pairs}"
+            frames = "all pairs" if self.frames == (None, None) else f"pairs {_range_text(self.frames)}"
+            return f"{what} ({frames})" + (f", matches {self.matches}" if self.matches else "")
         if self.synthetic:
             return f"synthetic seeds {self.seeds[0]}..{self.seeds[1] - 1} ({'/'.join(self.kinds)})"
         what = f"sequence {self.sequence}" if self.sequence else f"drive {self.drive}" if self.drive else "auto-detected"
@@ -308,7 +344,9 @@ class RunConfig:
 # run.json keys -> the flags that set them (differences are reported in the user's words)
 _FLAGS = {"selection.kitti_root": "--kitti-root", "selection.sequence": "--sequence", "selection.drive": "--drive",
           "selection.kinds": "--pair", "selection.steps": "--step", "selection.cams": "--cams", "selection.frames": "--frames",
-          "selection.synthetic": "--synthetic", "selection.seeds": "--seeds", "options.features": "--features",
+          "selection.synthetic": "--synthetic", "selection.seeds": "--seeds", "selection.pairs": "--pairs",
+          "selection.images": "--images", "selection.colmap": "--colmap", "selection.min_shared": "--min-shared",
+          "selection.matches": "--matches", "selection.gt_matches": "--gt-matches", "options.features": "--features",
           "options.max_keypoints": "--max-keypoints", "options.ratio": "--ratio", "options.mutual": "--mutual",
           "options.threshold": "--threshold", "options.confidence": "--confidence", "options.max_iters": "--max-iters",
           "options.seed": "--seed", "norm": "--norm", "eval_threshold": "--eval-threshold",

@@ -70,7 +70,7 @@ def result_from_record(rec: dict[str, Any], config: RunConfig) -> PairResult:
                             e["error"], R=array(e.get("R")), t=array(e.get("t")))
             for e in d["estimators"]]
     return PairResult(
-        pair=d["pair"], norm=d["norm"], eval_threshold_px=d["eval_threshold_px"], F_gt=np.array(d["F_gt"]),
+        pair=d["pair"], norm=d["norm"], eval_threshold_px=d["eval_threshold_px"], F_gt=None if d["F_gt"] is None else np.array(d["F_gt"]),
         n_keypoints=tuple(d["n_keypoints"]), n_matches=d["n_matches"], n_eval=d["n_eval"], timings=d["timings"],
         estimators=ests, notes=d.get("notes", []),
     )
@@ -83,7 +83,7 @@ def record_rows(rec: dict[str, Any], result: PairResult) -> list[dict[str, Any]]
 
 _CUT = object()
 _RECORD_KEYS = {"key": str, "index": int, "estimators": list, "ref": dict}
-_RESULT_KEYS = {"pair": dict, "norm": str, "eval_threshold_px": (int, float), "F_gt": list, "n_keypoints": list,
+_RESULT_KEYS = {"pair": dict, "norm": str, "eval_threshold_px": (int, float), "F_gt": (list, type(None)), "n_keypoints": list,
                 "n_matches": int, "n_eval": int, "timings": dict, "estimators": list}
 _ESTIMATOR_KEYS = {"name": str, "metrics": dict, "seconds": (int, float)}
 _warned: set[str] = set()
