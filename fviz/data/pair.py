@@ -155,9 +155,9 @@ class Pair:
             "K_b": listed(self.K_b),
             "baseline_m": None if self.t is None else float(np.linalg.norm(self.t)),
             "gt_accuracy_px": self.gt_accuracy_px,
+            "ground_truth": self.ground_truth,
         }
         if self.id.named:
-            d["ground_truth"] = self.ground_truth
             for v in ("a", "b"):
                 if f"path_{v}" in self.extra:
                     d[f"path_{v}"] = self.extra[f"path_{v}"]

@@ -62,12 +62,17 @@ def attach(pair: Pair, matches, gt_matches) -> Pair:
     """The pair with the user's matches and ground-truth correspondences (F_gt fitted to those)."""
     from fviz.data.correspondences import fit_gt
 
+    from fviz.data.correspondences import small_extent_note
+
     if matches is not None:
         pair.matches = matches.for_pair(pair)
-        pair.notes.append(f"matches: {len(pair.matches.x_a)} from {matches.path} (fviz's features not used)")
+        pair.notes.append(f"matches: {len(pair.matches.x_a)} from {pair.matches.path} (fviz's features not used)")
+        note = small_extent_note(pair.matches, pair)
+        if note:
+            pair.notes.append(note)
     if gt_matches is not None:
         c = gt_matches.for_pair(pair)
-        F, note = fit_gt(c, pair)
-        pair.F_gt, pair.gt_points, pair.R, pair.t = F, (c.x_a, c.x_b), None, None
+        F, accuracy, note = fit_gt(c, pair)
+        pair.F_gt, pair.gt_points, pair.R, pair.t, pair.gt_accuracy_px = F, (c.x_a, c.x_b), None, None, accuracy
         pair.notes.append(note)
     return pair
