@@ -53,3 +53,11 @@ def strecha_projection(name: str, pixel_shift: float = 0.0) -> np.ndarray:
 def same_up_to_sign(A, B, tol) -> bool:
     A, B = np.asarray(A, float), np.asarray(B, float)
     return min(np.abs(A - B).max(), np.abs(A + B).max()) < tol
+
+
+def mean_line_distance(F, x_a, x_b) -> np.ndarray:
+    """fviz's SED written out independently: the mean of d(x_b, F x_a) and d(x_a, F^T x_b), pixels."""
+    h = lambda x: np.c_[x, np.ones(len(x))]  # noqa: E731
+    lb, la = h(x_a) @ np.asarray(F).T, h(x_b) @ np.asarray(F)
+    r = np.abs(np.sum(h(x_b) * lb, 1))
+    return 0.5 * (r / np.hypot(lb[:, 0], lb[:, 1]) + r / np.hypot(la[:, 0], la[:, 1]))
