@@ -3,11 +3,14 @@
 closed-form F of the published cameras."""
 
 import json
+import re
 
 import cv2
 import numpy as np
 import pytest
 from cli_util import assert_one_line_error, run_fviz
+from fviz.record import layout as L
+from fviz.record.reader import column, text
 from sources_util import closed_form_F, fountain, mean_line_distance, same_up_to_sign, strecha_projection
 
 
@@ -59,10 +62,19 @@ def test_hloc_matches_give_opencvs_F_and_the_ground_truth_of_the_pairs_file(sift
     kp, m0, scores = sift_matches
     h5 = _write_hloc(tmp_path / "hloc", kp, m0, scores)
     d = fountain()
+    out = tmp_path / "m.rrd"
     doc, proc = inspect_json("--pairs", d / "pairs_with_gt.txt", "--images", d / "images", "--index", "0",
-                             "--matches", h5, "-e", "8point", "-e", "magsac", "--out", tmp_path / "m.rrd")
-    x_a, x_b, _ = _points(sift_matches)
+                             "--matches", h5, "-e", "8point", "-e", "magsac", "--probe-by", "score", "--out", out)
+    x_a, x_b, s = _points(sift_matches)
     assert doc["n_matches"] == len(x_a) and "fviz's features not used" in proc.stderr
+    # the matcher's scores: on hover of every match, and the probe walks the least confident first
+    labels = column(out, L.matches("gt"), "Points2D:labels")[0]
+    shown = sorted(float(t.rsplit(" ", 1)[1]) for t in labels[: len(x_a)])
+    assert np.allclose(shown, np.sort(s.astype(np.float32)), atol=1e-3)
+    steps = [float(re.search(r"score ([0-9.e-]+)", t).group(1)) for t in text(out, L.PROBE_TEXT)]
+    F_gt = closed_form_F(strecha_projection("0000.jpg"), strecha_projection("0001.jpg"))
+    near = mean_line_distance(F_gt, x_a.astype(np.float32).astype(float), x_b.astype(np.float32).astype(float)) < 2.0
+    assert len(steps) == 20 and steps == sorted(steps) and steps[0] == pytest.approx(s[near].min(), abs=1e-3)
     # hloc's keypoints have OpenCV's origin: no shift, so the 8-point F is OpenCV's on the same points
     F_cv, _ = cv2.findFundamentalMat(x_a.astype(np.float32).astype(np.float64), x_b.astype(np.float32).astype(np.float64), cv2.FM_8POINT)
     assert same_up_to_sign(_F(doc, "8point") / np.linalg.norm(_F(doc, "8point")), F_cv / np.linalg.norm(F_cv), 1e-6)

@@ -92,7 +92,7 @@ def pair(
     eval_threshold: o.EvalThreshold = 2.0,
     lines: Annotated[int, typer.Option("--lines", help="Epipolar lines drawn per F (a fixed random subset of matches).")] = 30,
     probe: Annotated[int, typer.Option("--probe", help="Steps of the probe timeline: the worst evaluation matches, one per step.")] = 20,
-    probe_by: Annotated[Optional[str], typer.Option("--probe-by", help="Order the probe by this estimator's residual (default: the largest over the estimators).")] = None,
+    probe_by: Annotated[Optional[str], typer.Option("--probe-by", help="Order the probe by this estimator's residual (default: the largest over the estimators), or by 'score': your matches' scores, lowest first.")] = None,
     out: Annotated[Optional[Path], typer.Option("--out", help="Recording to write, *.rrd (default runs/<pair>.rrd).",
                                                 callback=o.check_recording_path)] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print the result as JSON on stdout.")] = False,

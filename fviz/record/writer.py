@@ -293,7 +293,8 @@ def log_pair(rec, index: int, pair: Pair, result: PairResult, n_lines: int = 30,
             continue
         color = _rgb(colors[r.name])
         if not shared or r.name == L.GT:  # else the blueprint holds its classes
-            rec.log(L.matches(r.name), rr.Points2D(L.match_points(m.x_a, m.x_b, pair.size_a), class_ids=classes[r.name], radii=2.0))
+            rec.log(L.matches(r.name), rr.Points2D(L.match_points(m.x_a, m.x_b, pair.size_a), class_ids=classes[r.name], radii=2.0,
+                                                   **score_labels(m)))
         lines = {"a": lines_in_a(r.F, m.x_b[sub]), "b": lines_in_b(r.F, m.x_a[sub])}
         for v, e in zip(L.VIEWS, epipoles(r.F)):
             seg, inside = clip_lines(lines[v], *sizes[v])
@@ -311,6 +312,14 @@ def log_pair(rec, index: int, pair: Pair, result: PairResult, n_lines: int = 30,
         log_comparison(rec, result, colors)
     else:
         log_series(rec, result)
+
+
+def score_labels(m) -> dict:
+    """Hover text of a user's matches that carry their matcher's scores (``--matches``): both ends alike."""
+    if getattr(m, "scores", None) is None:
+        return {}
+    text = [f"match {i}: score {v:.3g}" for i, v in enumerate(m.scores)]
+    return {"labels": text + text, "show_labels": False}
 
 
 def match_classes(result: PairResult) -> dict[str, np.ndarray]:
@@ -417,13 +426,21 @@ def log_series(rec, result: PairResult) -> None:
         rec.log(L.motion(key), rr.Scalars(values))
 
 
+PROBE_BY_SCORE = "score"
+
+
 def probe_order(result: PairResult, by: str | None = None) -> np.ndarray:
     """Evaluation matches, worst first: by the largest residual over the estimators (not the GT), or by
-    estimator ``by``. -> match indices (M,)."""
+    estimator ``by``, or (``by="score"``) by the user's matcher's scores, least confident first. -> match indices (M,)."""
+    idx = np.flatnonzero(result.eval_mask) if result.eval_mask is not None else np.zeros(0, int)
+    if by == PROBE_BY_SCORE:
+        scores = getattr(result.matches, "scores", None)
+        if scores is None:
+            raise FvizError(f"--probe-by {by}: these matches have no scores (give --matches with the matcher's scores)")
+        return idx[np.argsort(scores[idx], kind="stable")]
     if by is not None and result.get(by) is None:
         raise FvizError(f"--probe-by {by}: not an estimator of this pair ({', '.join(_names(result))})")
     ok = [r for r in result.estimators if not r.error and r.name != L.GT and (by is None or r.name == by)]
-    idx = np.flatnonzero(result.eval_mask) if result.eval_mask is not None else np.zeros(0, int)
     if not ok or len(idx) == 0:
         return idx
     worst = np.max([r.residuals_px[idx] for r in ok], axis=0)
@@ -447,7 +464,8 @@ def log_probe(rec, index: int, pair: Pair, result: PairResult, steps: int = PROB
     m, ok = result.matches, [r for r in result.estimators if not r.error]
     sizes = {"a": pair.size_a, "b": pair.size_b}
     shift = L.offset_b(pair.size_a)
-    rank = "the largest residual over the estimators" if by is None else f"{by}'s residual"
+    rank = ("the largest residual over the estimators" if by is None else "the matcher's score, lowest first"
+            if by == PROBE_BY_SCORE else f"{by}'s residual")
     marker = L.PROBE_COLOR
     for k, j in enumerate(order):
         rec.set_time(L.PROBE_TIMELINE, sequence=k)
@@ -463,7 +481,8 @@ def log_probe(rec, index: int, pair: Pair, result: PairResult, steps: int = PROB
                        clear=False)
         rows = [f"| {r.name} | {r.residuals_px[j]:.2f} |" for r in ok]
         text = "\n".join([
-            f"**step {k + 1} of {len(order)}**: match {j}, a ({xa[0]:.1f}, {xa[1]:.1f}) → b ({xb[0]:.1f}, {xb[1]:.1f})",
+            f"**step {k + 1} of {len(order)}**: match {j}, a ({xa[0]:.1f}, {xa[1]:.1f}) → b ({xb[0]:.1f}, {xb[1]:.1f})"
+            + ("" if getattr(m, "scores", None) is None else f", score {m.scores[j]:.3g}"),
             "", "| F | SED px |", "|---|--:|", *rows, "",
             f"Worst first, by {rank}. Yellow rings: the match in a and b. A line that misses its ring is that F's "
             "error here (ground truth white).",
