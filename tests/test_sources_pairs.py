@@ -8,7 +8,7 @@ import pytest
 from cli_util import assert_one_line_error, run_fviz
 from sources_util import FAST, GT_METRICS, closed_form_F, fountain, same_up_to_sign, strecha_camera, strecha_projection
 
-from fviz.record.reader import read_recording, text
+from fviz.record.reader import blueprint_tabs, read_recording, text
 from fviz.record import layout as L
 
 
@@ -82,6 +82,9 @@ def test_two_images_without_ground_truth(tmp_path):
     rec = read_recording(out)
     assert set(rec.items[0].metrics["agreement_nsgd"]) == set(names)
     assert "nsgd" not in rec.items[0].metrics
+    # the overview shows the last estimator's keypoints and lines (there are no ground-truth ones)
+    overview = blueprint_tabs(out)["overview"]
+    assert f"+ {L.matches('magsac')}" in overview and not any("/gt" in q for q in overview)
 
 
 def test_kitti_pair_as_a_pairs_line_matches_kitti_root(kitti_root, tmp_path):

@@ -293,7 +293,8 @@ def log_pair(rec, index: int, pair: Pair, result: PairResult, n_lines: int = 30,
             continue
         color = _rgb(colors[r.name])
         if not shared or r.name == L.GT:  # else the blueprint holds its classes
-            rec.log(L.matches(r.name), rr.Points2D(L.match_points(m.x_a, m.x_b, pair.size_a), class_ids=classes[r.name], radii=2.0,
+            rec.log(L.matches(r.name), rr.Points2D(L.match_points(m.x_a, m.x_b, pair.size_a), class_ids=classes[r.name],
+                                                   radii=L.keypoint_radius(pair.size_a),
                                                    **score_labels(m)))
         lines = {"a": lines_in_a(r.F, m.x_b[sub]), "b": lines_in_b(r.F, m.x_a[sub])}
         for v, e in zip(L.VIEWS, epipoles(r.F)):
