@@ -146,3 +146,20 @@ def test_bad_pairs_line_names_file_and_line(tmp_path, line, fragment):
     bad.write_text("# comment\n0000.jpg 0001.jpg\n" + line + "\n")
     proc = run_fviz("eval", "--pairs", bad, "--images", d / "images", "--out-dir", tmp_path / "r", "--no-progress")
     assert_one_line_error(proc, 2, f"{bad}:3", fragment)
+
+
+@pytest.mark.parametrize("rot", [(1, 1), (3, 2)])
+def test_exif_rotation_of_a_pairs_line_turns_image_cameras_and_F(tmp_path, rot):
+    """rot0 rot1 turn the images as SuperGlue does (np.rot90): SIFT on the turned images still sits on the
+    turned ground truth, and the pose errors (rotation-invariant) stay small."""
+    d = fountain()
+    fields = (d / "pairs_with_gt.txt").read_text().splitlines()[0].split()
+    fields[2:4] = map(str, rot)
+    (tmp_path / "rot.txt").write_text(" ".join(fields) + "\n")
+    doc, proc = inspect_json("--pairs", tmp_path / "rot.txt", "--images", d / "images", *FAST, "-e", "magsac",
+                             "--out", tmp_path / "r.rrd")
+    size = lambda k: [2048, 3072] if k % 2 else [3072, 2048]  # noqa: E731
+    assert doc["pair"]["size_a"] == size(rot[0]) and doc["pair"]["size_b"] == size(rot[1])
+    rows = {e["name"]: e["metrics"] for e in doc["estimators"]}
+    assert doc["n_eval"] > 100 and rows["gt"]["sed_median"] < 0.5, rows["gt"]
+    assert rows["magsac"]["pose_err_deg"] < 2.0 and "turned by rot" in proc.stderr
