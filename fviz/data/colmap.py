@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from fviz.data.images import make_pair
+from fviz.data.pairsfile import pair_range, read_pairs
 from fviz.data.pair import Pair, PairId
 from fviz.errors import FvizError
 from fviz.geometry import fundamental_from_motion, normalize
@@ -152,18 +153,10 @@ class ColmapSource:
         self.views = views(rec, self.model)
         self.by_name = {v.name: v for v in self.views.values()}
         self.pairs = self._pairs(rec, pairs, min_shared)
-        start, end = frames
-        start, end = start or 0, len(self.pairs) if end is None else end
-        if not 0 <= start < end <= len(self.pairs):
-            raise FvizError(f"--frames {frames[0] or ''}:{'' if frames[1] is None else frames[1]}: the model gives pairs "
-                            f"0..{len(self.pairs) - 1} (START:END, END exclusive)")
-        self.range = range(start, end)
-        self.n_points = len(rec.points3D)
+        self.range = pair_range(frames, len(self.pairs), f"the model {self.model}")
 
     def _pairs(self, rec, pairs, min_shared: int) -> list[tuple[int, int]]:
         if pairs is not None:
-            from fviz.data.pairsfile import read_pairs
-
             out = []
             for p in read_pairs(pairs):
                 missing = [n for n in (p.name0, p.name1) if n not in self.by_name]

@@ -83,6 +83,16 @@ def read_pairs(path: str | Path) -> list[PairLine]:
     return out
 
 
+def pair_range(frames: tuple[int | None, int | None], n: int, what: str) -> range:
+    """``--frames START:END`` (END exclusive, either may be None) of ``n`` listed pairs; one-line error outside."""
+    start, end = frames
+    start, end = start or 0, n if end is None else end
+    if not 0 <= start < end <= n:
+        raise FvizError(f"--frames {frames[0] or ''}:{'' if frames[1] is None else frames[1]}: {what} has pairs "
+                        f"0..{n - 1} (START:END, END exclusive)")
+    return range(start, end)
+
+
 class PairsSource:
     """The pairs of a pairs file over an image folder: ``pair_ids`` (optionally lines A:B of the
     pairs, counted from 0), ``load``, ``ground_truth`` (F without reading images when the line has a pose)."""
@@ -93,12 +103,7 @@ class PairsSource:
         if not self.images.is_dir():
             raise FvizError(f"--images {self.images}: not a folder")
         self.lines = read_pairs(self.path)
-        start, end = frames
-        start, end = start or 0, len(self.lines) if end is None else end
-        if not 0 <= start < end <= len(self.lines):
-            raise FvizError(f"--frames {frames[0] or ''}:{'' if frames[1] is None else frames[1]}: {self.path} has pairs "
-                            f"0..{len(self.lines) - 1} (START:END, END exclusive)")
-        self.range = range(start, end)
+        self.range = pair_range(frames, len(self.lines), str(self.path))
 
     @property
     def label(self) -> str:
