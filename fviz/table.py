@@ -90,15 +90,17 @@ def paper_table(run_dir: str | Path) -> tuple[list[str], list[list[str]]]:
 
 def run_figures(run_dir: Path) -> dict[str, dict]:
     """The standard figures of a run, from its metrics.csv."""
-    from fviz.run.reports import FIGURE_KEYS, standard_figures
+    from fviz.run.reports import FIGURE_KEYS, figures_known, standard_figures
 
     per_pair: dict[str, list[float]] = {}
+    ground_truth: set[str] = set()
     with open(run_dir / "metrics.csv", newline="") as f:
         for row in csv.DictReader(f):
+            ground_truth.update([row["ground_truth"]] if row.get("ground_truth") else [])
             failed = bool(row.get("error") or row.get("pair_error"))
             per_pair.setdefault(row["estimator"], []).extend(
                 math.nan if failed or row.get(k) in (None, "") else float(row[k]) for k in FIGURE_KEYS)
-    return standard_figures(per_pair)
+    return standard_figures(per_pair, known=figures_known(ground_truth))
 
 
 def write_table(run_dir: str | Path) -> tuple[Path, Path]:

@@ -163,3 +163,29 @@ def test_exif_rotation_of_a_pairs_line_turns_image_cameras_and_F(tmp_path, rot):
     rows = {e["name"]: e["metrics"] for e in doc["estimators"]}
     assert doc["n_eval"] > 100 and rows["gt"]["sed_median"] < 0.5, rows["gt"]
     assert rows["magsac"]["pose_err_deg"] < 2.0 and "turned by rot" in proc.stderr
+
+
+def test_eval_triage_table_without_ground_truth(tmp_path):
+    """A names-only pairs file: no GT metric anywhere, pose AUC and NSGD recall n/a (not 0), triage and table run."""
+    import csv
+
+    d = fountain()
+    (tmp_path / "names.txt").write_text("# names only: no ground truth\n0004.jpg 0005.jpg\n0005.jpg 0006.jpg\n")
+    run = tmp_path / "run"
+    proc = run_fviz("eval", "--pairs", tmp_path / "names.txt", "--images", d / "images", "-e", "8point", "-e", "magsac",
+                    *FAST, "--out-dir", run, "--workers", "1", "--no-progress", timeout=400)
+    assert proc.returncode == 0, proc.stderr
+    recs = [json.loads(l) for l in (run / "results.jsonl").read_text().splitlines()]
+    assert all(r["error"] is None and r["result"]["F_gt"] is None for r in recs)
+    with open(run / "metrics.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert {r["estimator"] for r in rows} == {"8point", "magsac"} and {r["ground_truth"] for r in rows} == {"none"}
+    assert not set(GT_METRICS) & set(rows[0]) and all(float(r["agreement_nsgd"]) >= 0 for r in rows)
+    figures = json.loads((run / "summary.json").read_text())["estimators"]
+    for f in figures.values():
+        assert f["nsgd_recall"] is None and set(f["pose_auc"].values()) == {None} and f["sed_median"] > 0
+    assert "no ground truth" in (run / "summary.md").read_text()
+    for cmd in (["triage", "--out-dir", run], ["table", run]):
+        proc = run_fviz(*cmd, timeout=300)
+        assert proc.returncode == 0, proc.stderr
+    assert "| magsac | n/a | n/a | n/a | n/a |" in (run / "table.md").read_text()

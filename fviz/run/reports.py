@@ -49,6 +49,13 @@ def _arrow_schema(columns: list[str]):
                       for c in columns])
 
 
+def figures_known(ground_truth: set[str]) -> dict[str, bool]:
+    """Which standard figures the pairs' ground truth (the rows' ``ground_truth``: pose, F, correspondences,
+    none) allows: pose AUC needs a pose, NSGD recall an F. Runs that predate the column: both."""
+    gts = ground_truth or {"pose"}
+    return {"pose": "pose" in gts, "nsgd": bool(gts - {"none"})}
+
+
 # Per pair and estimator, what the standard figures need (NaN where the estimate failed).
 FIGURE_KEYS = ("pose_err_deg", "nsgd", "sed_median", "sampson_median")
 
@@ -68,9 +75,7 @@ class _Stats:
 
     @property
     def known(self) -> dict[str, bool]:
-        """Which standard figures the pairs' ground truth allows: pose AUC needs a pose, NSGD recall an F."""
-        gts = self.ground_truth or {"pose"}
-        return {"pose": "pose" in gts, "nsgd": bool(gts - {"none"})}
+        return figures_known(self.ground_truth)
 
     def add(self, rec: dict[str, Any], rows: list[dict[str, Any]]) -> None:
         self.pairs += 1
