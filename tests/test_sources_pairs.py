@@ -189,3 +189,32 @@ def test_eval_triage_table_without_ground_truth(tmp_path):
         proc = run_fviz(*cmd, timeout=300)
         assert proc.returncode == 0, proc.stderr
     assert "| magsac | n/a | n/a | n/a | n/a |" in (run / "table.md").read_text()
+
+
+def test_eval_two_images_with_a_given_F(tmp_path):
+    d = fountain()
+    F = closed_form_F(strecha_projection("0000.jpg"), strecha_projection("0001.jpg"))
+    (tmp_path / "F.txt").write_text("\n".join(" ".join(repr(float(v)) for v in row) for row in F))
+    run = tmp_path / "run"
+    proc = run_fviz("eval", "--image-a", d / "images" / "0000.jpg", "--image-b", d / "images" / "0001.jpg", "--F-gt",
+                    tmp_path / "F.txt", "-e", "magsac", *FAST, "--out-dir", run, "--workers", "1", "--no-progress", timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    (rec,) = [json.loads(l) for l in (run / "results.jsonl").read_text().splitlines()]
+    res = rec["result"]
+    assert res["ground_truth"] == "F" and same_up_to_sign(res["F_gt"], F, 1e-12)
+    magsac = next(e for e in res["estimators"] if e["name"] == "magsac")["metrics"]
+    assert "nsgd" in magsac and "rot_err_deg" not in magsac and "epipole_err_deg" not in magsac  # an F: no pose, no K
+    assert magsac["nsgd"] < 0.01 and json.loads((run / "summary.json").read_text())["estimators"]["magsac"]["nsgd_recall"] == 1
+
+
+@pytest.mark.parametrize("args, fragment", [
+    (["--T-ab", "1 0 0 1 0 1 0 0 0 0 1 0"], "needs the intrinsics"),
+    (["--T-ab", "0 0 0 1 0 0 0 0 0 0 0 0"], "not a rotation"),
+    (["--K", "1,2,3"], "--K '1,2,3': 3 numbers"),
+    (["--K-a", "100,100,50,50"], "--K-b: missing"),
+    (["--F-gt", "1 2 3"], "--F-gt '1 2 3': 3 numbers"),
+])
+def test_bad_ground_truth_flags_are_one_line(tmp_path, args, fragment):
+    d = fountain() / "images"
+    proc = run_fviz("inspect", "pair", "--image-a", d / "0000.jpg", "--image-b", d / "0001.jpg", *args, "--out", tmp_path / "x.rrd")
+    assert_one_line_error(proc, 2, fragment)

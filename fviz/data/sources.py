@@ -28,6 +28,33 @@ def user_source(pairs=None, images=None, colmap=None, min_shared: int = COLMAP_M
     return None
 
 
+class TwoImagesSource:
+    """``--image-a A --image-b B`` in eval / triage: one pair (with the ground truth the flags give)."""
+
+    def __init__(self, image_a: str, image_b: str, gt: dict[str, str | None]):
+        from fviz.data.images import two_images
+
+        self.args = (image_a, image_b, gt)
+        self.pair0 = two_images(image_a, image_b, **gt)  # the flags checked (and the images read) before any work
+
+    def pair_ids(self) -> list[PairId]:
+        return [self.pair0.id]
+
+    def load(self, pid: PairId) -> Pair:
+        from fviz.data.images import two_images
+
+        image_a, image_b, gt = self.args
+        return two_images(image_a, image_b, **gt)
+
+    def ground_truth(self, pid: PairId):
+        return self.pair0.F_gt
+
+    def inspect_args(self, pid: PairId) -> list[str]:
+        image_a, image_b, gt = self.args
+        flags = {"K": "--K", "K_a": "--K-a", "K_b": "--K-b", "T_ab": "--T-ab", "F_gt": "--F-gt"}
+        return ["--image-a", image_a, "--image-b", image_b, *(x for k, v in gt.items() if v for x in (flags[k], v))]
+
+
 class WithCorrespondences:
     """A source whose pairs carry the user's matches and/or ground-truth correspondences."""
 

@@ -69,11 +69,27 @@ class Selection:
     min_shared: int = 100
     matches: str | None = None  # the user's matches for every pair (fviz.data.correspondences)
     gt_matches: str | None = None
+    image_a: str | None = None  # two images (fviz.data.images) and the ground truth their flags give
+    image_b: str | None = None
+    K: str | None = None
+    K_a: str | None = None
+    K_b: str | None = None
+    T_ab: str | None = None
+    F_gt: str | None = None
 
     @property
     def user(self) -> bool:
-        """Whether the pairs are a user's (--pairs / --colmap) rather than KITTI or synthetic ones."""
-        return self.pairs is not None or self.colmap is not None
+        """Whether the pairs are a user's (--pairs / --colmap / --image-a) rather than KITTI or synthetic ones."""
+        return self.pairs is not None or self.colmap is not None or self.image_a is not None or self.image_b is not None
+
+    def _images_source(self):
+        from fviz.data.sources import TwoImagesSource
+
+        if self.pairs is not None or self.colmap is not None:
+            raise FvizError("--image-a/--image-b and --pairs/--colmap: choose one source")
+        if self.image_a is None or self.image_b is None:
+            raise FvizError(f"--image-{'a' if self.image_a is None else 'b'}: missing (give both images)")
+        return TwoImagesSource(self.image_a, self.image_b, dict(K=self.K, K_a=self.K_a, K_b=self.K_b, T_ab=self.T_ab, F_gt=self.F_gt))
 
     def __post_init__(self):
         if self.user:
@@ -116,7 +132,13 @@ class Selection:
     def source(self):
         """The pairs' source: KittiSource, SyntheticSource or a user's (fviz.data.sources), with the user's
         matches and ground-truth correspondences attached when given."""
-        if self.user:
+        gt_flags = [f for f, v in (("--K", self.K), ("--K-a", self.K_a), ("--K-b", self.K_b), ("--T-ab", self.T_ab),
+                                   ("--F-gt", self.F_gt)) if v]
+        if gt_flags and self.image_a is None and self.image_b is None:
+            raise FvizError(f"{gt_flags[0]}: only with --image-a and --image-b")
+        if self.image_a is not None or self.image_b is not None:
+            source = self._images_source()
+        elif self.user:
             from fviz.data.sources import user_source
 
             source = user_source(self.pairs, self.images, self.colmap, self.min_shared, self.frames)
@@ -129,6 +151,8 @@ class Selection:
         return source
 
     def describe(self) -> str:
+        if self.image_a is not None:
+            return f"images {self.image_a} -> {self.image_b}" + (f", matches {self.matches}" if self.matches else "")
         if self.user:
             what = f"COLMAP model {self.colmap}" if self.colmap else f"pairs file {self.pairs}"
             frames = "all pairs" if self.frames == (None, None) else f"pairs {_range_text(self.frames)}"
@@ -346,7 +370,9 @@ _FLAGS = {"selection.kitti_root": "--kitti-root", "selection.sequence": "--seque
           "selection.kinds": "--pair", "selection.steps": "--step", "selection.cams": "--cams", "selection.frames": "--frames",
           "selection.synthetic": "--synthetic", "selection.seeds": "--seeds", "selection.pairs": "--pairs",
           "selection.images": "--images", "selection.colmap": "--colmap", "selection.min_shared": "--min-shared",
-          "selection.matches": "--matches", "selection.gt_matches": "--gt-matches", "options.features": "--features",
+          "selection.matches": "--matches", "selection.gt_matches": "--gt-matches", "selection.image_a": "--image-a",
+          "selection.image_b": "--image-b", "selection.K": "--K", "selection.K_a": "--K-a", "selection.K_b": "--K-b",
+          "selection.T_ab": "--T-ab", "selection.F_gt": "--F-gt", "options.features": "--features",
           "options.max_keypoints": "--max-keypoints", "options.ratio": "--ratio", "options.mutual": "--mutual",
           "options.threshold": "--threshold", "options.confidence": "--confidence", "options.max_iters": "--max-iters",
           "options.seed": "--seed", "norm": "--norm", "eval_threshold": "--eval-threshold",
