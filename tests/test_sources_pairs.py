@@ -218,3 +218,17 @@ def test_bad_ground_truth_flags_are_one_line(tmp_path, args, fragment):
     d = fountain() / "images"
     proc = run_fviz("inspect", "pair", "--image-a", d / "0000.jpg", "--image-b", d / "0001.jpg", *args, "--out", tmp_path / "x.rrd")
     assert_one_line_error(proc, 2, fragment)
+
+
+def test_inspect_picks_a_line_by_its_names(tmp_path):
+    d = fountain()
+    lines = (d / "pairs_with_gt.txt").read_text().splitlines()
+    name0, name1 = lines[3].split()[:2]
+    doc, _ = inspect_json("--pairs", d / "pairs_with_gt.txt", "--images", d / "images", "--image-a", name0,
+                          "--image-b", name1, "-e", "magsac", *FAST, "--out", tmp_path / "n.rrd")
+    assert (doc["pair"]["image_a"], doc["pair"]["image_b"], doc["pair"]["frame_a"]) == (name0, name1, 3)
+    F_ref = closed_form_F(strecha_projection(name0), strecha_projection(name1))
+    assert same_up_to_sign(doc["F_gt"], F_ref, 1e-6)
+    proc = run_fviz("inspect", "pair", "--pairs", d / "pairs_with_gt.txt", "--images", d / "images", "--image-a", "0000.jpg",
+                    "--image-b", "0009.jpg", "--out", tmp_path / "x.rrd")
+    assert_one_line_error(proc, 2, "no line '0000.jpg 0009.jpg'")

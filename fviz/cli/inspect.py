@@ -34,11 +34,14 @@ def _user_pair(user: dict, frame: int):
 
     images = user.get("image_a") is not None or user.get("image_b") is not None
     listed = user.get("pairs") is not None or user.get("colmap") is not None
-    if images and listed:
-        raise FvizError("--image-a/--image-b and --pairs/--colmap: choose one source")
+    names = None
+    if images and listed:  # the pair of a list, by its images' names
+        if user.get("image_a") is None or user.get("image_b") is None or user.get("index") is not None:
+            raise FvizError("--pairs/--colmap: pick a pair by --index N or by both names (--image-a NAME --image-b NAME)")
+        names, images = (str(user["image_a"]), str(user["image_b"])), False
     gt_flags = [f for f, k in (("--K", "K"), ("--K-a", "K_a"), ("--K-b", "K_b"), ("--T-ab", "T_ab"), ("--F-gt", "F_gt")) if user.get(k)]
-    if gt_flags and not images:
-        raise FvizError(f"{gt_flags[0]}: only with --image-a and --image-b")
+    if gt_flags and (not images or names):
+        raise FvizError(f"{gt_flags[0]}: only with --image-a and --image-b (a pairs file or model has its own ground truth)")
     if images:
         if user.get("image_a") is None or user.get("image_b") is None:
             raise FvizError(f"--image-{'a' if user.get('image_a') is None else 'b'}: missing (give both images)")
@@ -53,7 +56,8 @@ def _user_pair(user: dict, frame: int):
     from fviz.data.sources import user_source
 
     source = user_source(user.get("pairs"), user.get("images"), user.get("colmap"), user.get("min_shared"))
-    return source.load(source.pair_ids()[source.index_of(user.get("index"), None)])
+    index = source.index_of(user.get("index"), names)
+    return source.load(source.pair_id(index))
 
 
 def _kitti_or_synthetic(kitti_root, sequence, drive, frame, pair_kind, step, cams, synthetic: bool, seed: int):

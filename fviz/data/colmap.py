@@ -180,6 +180,12 @@ class ColmapSource:
         return [self.pair_id(i) for i in self.range]
 
     def index_of(self, index: int | None, names: tuple[str, str] | None) -> int:
+        """The pair ``--index N`` (from 0) of the model's pairs, or the one of both names."""
+        if names is not None:
+            ids = tuple(self.by_name[n].image_id if n in self.by_name else None for n in names)
+            if ids not in self.pairs:
+                raise FvizError(f"--colmap {self.model}: no pair {names[0]} {names[1]} among its pairs (see --min-shared, --pairs)")
+            return self.pairs.index(ids)
         index = 0 if index is None else index
         if not 0 <= index < len(self.pairs):
             raise FvizError(f"--index {index}: the model gives pairs 0..{len(self.pairs) - 1}")
