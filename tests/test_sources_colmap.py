@@ -137,3 +137,12 @@ def test_distortion_is_refused_unless_zero(tmp_path):
     (zero / "cameras.txt").write_text(line.format(k=0.05))
     proc = run_fviz("inspect", "pair", "--colmap", zero, "--images", fountain() / "images")
     assert_one_line_error(proc, 2, "SIMPLE_RADIAL has distortion", "image_undistorter")
+
+
+def test_bad_images_txt_names_file_and_line(tmp_path):
+    images = (fountain() / "colmap" / "images.txt").read_text().splitlines()
+    pose = [i for i, l in enumerate(images) if l and not l.startswith("#")][2]
+    images[pose] = "3 0.5 x 0 0 0 0 0 3 0002.jpg"
+    model = clean_model(tmp_path, images_txt="\n".join(images) + "\n")
+    proc = run_fviz("inspect", "pair", "--colmap", model, "--images", fountain() / "images")
+    assert_one_line_error(proc, 2, f"{model / 'images.txt'}:{pose + 1}", "IMAGE_ID QW QX")

@@ -70,6 +70,21 @@ def check_cameras_txt(path: Path) -> None:
             raise FvizError(f"{path}:{n}: expected CAMERA_ID MODEL WIDTH HEIGHT PARAMS (numbers), found {bad!r}") from None
 
 
+def check_images_txt(path: Path) -> None:
+    """images.txt holds two lines per image (blank lines count: an image without points has an empty second
+    line): IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME, then X Y POINT3D_ID triplets. A line that is not is a
+    one-line error naming the file and line."""
+    rows = [(n, raw.split()) for n, raw in enumerate(path.read_text(errors="replace").splitlines(), 1)
+            if not raw.lstrip().startswith("#")]
+    for k, (n, fields) in enumerate(rows):
+        if k % 2 == 0:
+            ok = len(fields) >= 10 and fields[0].isdigit() and fields[8].isdigit() and all(map(_is_float, fields[1:8]))
+            if not ok and fields:
+                raise FvizError(f"{path}:{n}: expected IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME, found {' '.join(fields)[:60]!r}")
+        elif len(fields) % 3 or not all(map(_is_float, fields)):
+            raise FvizError(f"{path}:{n}: expected the image's points as X Y POINT3D_ID triplets")
+
+
 def _is_float(v: str) -> bool:
     try:
         float(v)
@@ -101,6 +116,7 @@ def read_model(model: str | Path):
     ext = _check_model_dir(model)
     if ext == "txt":
         check_cameras_txt(model / "cameras.txt")
+        check_images_txt(model / "images.txt")
     import pycolmap
 
     try:
