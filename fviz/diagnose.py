@@ -16,6 +16,10 @@ HOMOGRAPHY_PX = 2.0
 ROTATION_PX = 2.0
 STATIC_PX = 0.5  # a match moving less than this is static (identical images: every match)
 MIN_FIT = 8  # fewer inliers than this: no homography is fitted
+FOCAL_PROBE_PX = 0.5  # focal_observable: noise added to exact matches, draws, matches used,
+FOCAL_PROBE_RUNS = 3
+FOCAL_PROBE_POINTS = 300
+FOCAL_STABLE = 0.25  # and the largest relative focal error that still counts as determined
 
 
 def homography_fraction(x_a: np.ndarray, x_b: np.ndarray) -> float:
@@ -40,7 +44,56 @@ def rotation_fraction(pair, x_a: np.ndarray, x_b: np.ndarray) -> float:
     return float(np.mean(np.nan_to_num(err, nan=np.inf) < ROTATION_PX))
 
 
-def _estimator_evidence(r, m, gt_sed: np.ndarray, eval_threshold: float) -> dict[str, float]:
+def focals(pair, F: np.ndarray) -> list[float]:
+    """[f_a, f_b] px of F by Bougnoux's formula (PoseLib) at K's principal points; NaN where imaginary,
+    and where PoseLib is not installed."""
+    if not pair.has_K:
+        return [float("nan")] * 2
+    try:
+        from fviz.estimators.external import bougnoux_focals
+
+        return list(bougnoux_focals(F, pair.K_a[:2, 2], pair.K_b[:2, 2]))
+    except ImportError:
+        return [float("nan")] * 2
+
+
+def focal_observable(pair, x_a: np.ndarray, x_b: np.ndarray) -> bool:
+    """Whether these matches determine the focal lengths through F: moved onto F_gt's epipolar lines (x_b to
+    the nearest point of F_gt x_a), with FOCAL_PROBE_PX of Gaussian noise added (FOCAL_PROBE_RUNS seeded draws),
+    an 8-point F fitted to them gives Bougnoux focals within FOCAL_STABLE of K's every time. False on rectified
+    stereo and on forward motion, where the formula is (nearly) singular and any estimate's focals say nothing."""
+    import cv2
+
+    from fviz.geometry import homogeneous, lines_in_b
+
+    if len(x_a) < MIN_FIT or not (pair.has_gt and pair.has_K):
+        return False
+    x_a, x_b = x_a[:FOCAL_PROBE_POINTS], x_b[:FOCAL_PROBE_POINTS]  # the best matches: enough for an 8-point F
+    f_true = np.array([pair.K_a[0, 0], pair.K_b[0, 0]])
+    l_b = lines_in_b(pair.F_gt, x_a)  # unit normals: x_b moved to the foot of its perpendicular on F_gt x_a
+    on_line = x_b - (np.einsum("ni,ni->n", l_b, homogeneous(x_b)))[:, None] * l_b[:, :2]
+    rng = np.random.default_rng(0)
+    for _ in range(FOCAL_PROBE_RUNS):
+        na, nb = (c + rng.normal(0, FOCAL_PROBE_PX, c.shape) for c in (np.asarray(x_a, np.float64), on_line))
+        F, _ = cv2.findFundamentalMat(na, nb, cv2.FM_8POINT)
+        f = np.array(focals(pair, F[:3])) if F is not None else np.full(2, np.nan)
+        if not np.all(np.abs(f / f_true - 1) < FOCAL_STABLE):  # NaN (imaginary) fails too
+            return False
+    return True
+
+
+def two_view_label(pair, m) -> str:
+    """COLMAP's two-view configuration of the matches (``n/a`` where pycolmap is not installed, or the cameras unknown)."""
+    if not pair.has_K:
+        return "n/a"
+    try:
+        from fviz.estimators.external import two_view_configuration
+    except ImportError:
+        return "n/a"
+    return two_view_configuration(pair, m.x_a, m.x_b)
+
+
+def _estimator_evidence(pair, r, m, gt_sed: np.ndarray, eval_threshold: float) -> dict[str, float]:
     inl = np.zeros(len(m), bool) if r.inliers is None else r.inliers
     n = int(inl.sum())
     known = n and gt_sed is not None
@@ -49,13 +102,16 @@ def _estimator_evidence(r, m, gt_sed: np.ndarray, eval_threshold: float) -> dict
         "homography_fraction": homography_fraction(m.x_a[inl], m.x_b[inl]),
         "gt_agree": float(np.mean(gt_sed[inl] < eval_threshold)) if known else float("nan"),
         "gt_sed_median_inliers": float(np.median(gt_sed[inl])) if known else float("nan"),
+        "focals": focals(pair, r.F),
     }
 
 
 def diagnose(pair, result) -> dict[str, Any]:
     """Evidence for the tags of one evaluated pair (JSON-ready; NaN where undefined), and the
     straight-ahead baseline's median SED on the evaluation matches (``ahead_sed_median``), so that
-    triage can compare every run with it whether or not ``-e ahead`` was given."""
+    triage can compare every run with it whether or not ``-e ahead`` was given; COLMAP's two-view label of the
+    matches (``two_view``), whether the evaluation matches determine focal lengths through F (``focal_observable``)
+    and, per estimator, its Bougnoux focals (``focals``)."""
     from fviz.estimators.baselines import ahead
     from fviz.geometry import symmetric_epipolar_distance
 
@@ -74,6 +130,8 @@ def diagnose(pair, result) -> dict[str, Any]:
         "static_fraction": float(np.mean(flow < STATIC_PX)) if len(m) else float("nan"),
         "rotation_fraction": rotation_fraction(pair, m.x_a, m.x_b) if pair.has_pose else nan,
         "ahead_sed_median": float(np.median(ahead_sed)) if len(ahead_sed) else float("nan"),
-        "estimators": {r.name: _estimator_evidence(r, m, gt_sed, result.eval_threshold_px)
+        "two_view": two_view_label(pair, m),
+        "focal_observable": focal_observable(pair, xa, xb),
+        "estimators": {r.name: _estimator_evidence(pair, r, m, gt_sed, result.eval_threshold_px)
                        for r in result.estimators if r.name != GT_NAME and not r.error},
     }

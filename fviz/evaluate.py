@@ -14,6 +14,9 @@ Evaluation correspondences are the matched keypoints whose symmetric epipolar di
   min(e, 180 - e)), ``pose_err_deg`` = their max; NaN when no pose can be recovered;
 - FM-Bench (:mod:`fviz.geometry.fmbench`): ``nsgd`` (normalized symmetric geometric distance, seeded) and
   ``gt_inlier_ratio`` (share of the inliers within 0.003 x diagonal of the ground-truth lines);
+- per pair, before any estimator (``PairResult.match_precision``, :mod:`fviz.geometry.precision`): the share
+  of matches under glue-factory's normalized epipolar error 1e-4 / 5e-4 / 1e-3 (``epi_prec@...``) and under
+  1 / 2 / 4 px of F_gt (``px_prec@...``): whether the matcher gave an estimator something to find;
 - ``f_dist``: ||F - F_gt|| of unit-norm pixel-coordinate F, up to sign. Kept per pair for continuity only:
   unconditioned (the entries of a pixel F differ by ~10^6 in scale), it misranks estimators and is used in
   no summary, table or ranking.
@@ -49,6 +52,7 @@ from fviz.geometry import (
     epipoles,
     f_distance,
     gt_inlier_ratio,
+    match_precision,
     normalize,
     nsgd,
     recover_pose,
@@ -106,6 +110,7 @@ class PairResult:
     matches: Matches | None = None
     eval_mask: np.ndarray | None = None
     notes: list[str] = field(default_factory=list)
+    match_precision: dict[str, float] = field(default_factory=dict)
     eval_points: str = "near-gt"  # what the residuals are computed on: near-gt, gt-matches or all-matches
     agreement: dict[str, Any] | None = None  # without ground truth: {"metric": "nsgd", "names", "matrix"}
 
@@ -136,6 +141,7 @@ class PairResult:
             "timings": self.timings,
             "estimators": [r.to_dict() for r in self.estimators],
             "notes": self.notes,
+            "match_precision": {k: _json_float(v) for k, v in self.match_precision.items()},
         }
 
     def rows(self) -> list[dict[str, Any]]:
@@ -143,7 +149,7 @@ class PairResult:
         base = {k: v for k, v in self.pair.items() if not isinstance(v, (list, dict))}
         return [
             {**base, "estimator": r.name, "norm": self.norm, "n_matches": self.n_matches, "n_eval": self.n_eval,
-             "seconds": r.seconds, "error": r.error or "", **r.metrics}
+             **self.match_precision, "seconds": r.seconds, "error": r.error or "", **r.metrics}
             for r in self.estimators
         ]
 
@@ -312,4 +318,6 @@ def evaluate_pair(
         timings={"features_s": t1 - t0, "matching_s": t2 - t1}, estimators=results, matches=m,
         eval_mask=eval_mask, notes=notes, eval_points=eval_points,
         agreement=None if pair.has_gt else agreement(results, pair.size_a, pair.size_b),
+        match_precision={} if not pair.has_pose else match_precision(pair.K_a, pair.K_b, pair.R, pair.t, pair.F_gt,
+                                                                     m.x_a, m.x_b),
     )

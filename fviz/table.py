@@ -57,35 +57,40 @@ def paper_table(run_dir: str | Path) -> tuple[list[str], list[list[str]]]:
         if not p.is_file():
             raise FvizError(f"{p}: missing (run fviz eval --out-dir {run_dir} first)")
     specs = json.loads(cfg_path.read_text())["options"]["names"]
-    variants = deep_variants(specs)
+    with open(csv_path, newline="") as f:
+        return table_from_rows(csv.DictReader(f), deep_variants(specs))
+
+
+def table_from_rows(rows, variants: dict[str, dict]) -> tuple[list[str], list[list[str]]]:
+    """(header, rows) of Table 1 from per-pair, per-estimator rows (metrics.csv's, or
+    :meth:`fviz.evaluate.PairResult.rows`); ``variants``: display name -> parsed variant of the deep ones."""
     sums: dict[tuple[str, str], list[float]] = defaultdict(list)
     order: dict[str, None] = {}
-    with open(csv_path, newline="") as f:
-        for row in csv.DictReader(f):
-            est = row["estimator"]
-            if row.get("error"):
-                continue
-            if est in variants:
-                v = variants[est]
-                label = f"{ARCH_LABELS[v['arch']]} {HEAD_LABELS[(v['head'], v['pos'])]}"
-                cells = [v["norm"]]
-            else:
-                label = CLASSICAL_LABELS.get(est) or (f"Mean GT F of {est[5:]}" if est.startswith("mean-") else est)
-                cells = list(NORMS)
-            order[label] = None
-            for n in cells:
-                for m in ("abs", "sqr"):
-                    x = row.get(f"epi_{m}_{n}", "")
-                    if x not in ("", "nan") and math.isfinite(float(x)):
-                        sums[(label, f"{m}_{n}")].append(float(x))
+    for row in rows:
+        est = row["estimator"]
+        if row.get("error"):
+            continue
+        if est in variants:
+            v = variants[est]
+            label = f"{ARCH_LABELS[v['arch']]} {HEAD_LABELS[(v['head'], v['pos'])]}"
+            cells = [v["norm"]]
+        else:
+            label = CLASSICAL_LABELS.get(est) or (f"Mean GT F of {est[5:]}" if est.startswith("mean-") else est)
+            cells = list(NORMS)
+        order[label] = None
+        for n in cells:
+            for m in ("abs", "sqr"):
+                x = row.get(f"epi_{m}_{n}", "")
+                if x not in ("", "nan", None) and math.isfinite(float(x)):
+                    sums[(label, f"{m}_{n}")].append(float(x))
     gt = CLASSICAL_LABELS["gt"]
     labels = [lbl for lbl in order if lbl != gt] + ([gt] if gt in order else [])
     header = ["Method"] + [f"{n.upper()} EPI-{m.upper()}" for n in NORMS for m in ("abs", "sqr")]
-    rows = []
+    table = []
     for lbl in labels:
         vals = [sums.get((lbl, f"{m}_{n}"), []) for n in NORMS for m in ("abs", "sqr")]
-        rows.append([lbl] + [f"{sum(v) / len(v):.4g}" if v else "" for v in vals])
-    return header, rows
+        table.append([lbl] + [f"{sum(v) / len(v):.4g}" if v else "" for v in vals])
+    return header, table
 
 
 def run_figures(run_dir: Path) -> dict[str, dict]:

@@ -42,6 +42,17 @@ Pair tags (thresholds are the constants below and in :mod:`fviz.diagnose`):
   frozen images): every F whose lines pass through the points fits them, so near-zero residuals and
   100 % inliers say nothing.
 
+- ``matcher`` / ``estimator``: the ranked estimator failed on the pair (an error, ``pose_err_deg`` >
+  FAIL_POSE_DEG or ``sed_median`` > FAIL_SED_PX) and the matches were (``matcher``) or were not (``estimator``)
+  to blame: fewer than MATCHER_MIN_PRECISION of them within 2 px of F_gt, or fewer than MATCHER_MIN_CORRECT
+  within 1 px (``match_precision``, computed before any estimator); not on a ``gt-suspect`` pair, where both
+  are measured against a doubtful ground truth;
+- ``colmap-planar``, ``colmap-panoramic``, ``colmap-planar-or-panoramic``, ``colmap-watermark``,
+  ``colmap-degenerate``: COLMAP's two-view configuration of the matches (pycolmap, with the pair's cameras);
+- ``focal-implausible``: the ranked estimator's F gives imaginary focal lengths (Bougnoux, PoseLib) or ones
+  more than FOCAL_OFF times off K's, on a pair whose matches determine the focals (``focal_observable``
+  in :mod:`fviz.diagnose`; never on rectified stereo or forward motion, where no F does).
+
 There is no tag for an epipole inside the image: on forward motion it holds for every pair.
 """
 
@@ -78,7 +89,15 @@ IGNORES_FRACTION = 0.1
 IGNORES_MIN_PAIRS = 5
 MIN_GT_SPREAD_DEG = 0.01  # a quantity the ground truth varies less than this is not judged
 
-TAGS = ("error", "few-matches", "low-inliers", "gt-suspect", "planar", "small-baseline", "degenerate")
+FAIL_POSE_DEG = 10.0
+FAIL_SED_PX = EVAL_THRESHOLD_PX
+MATCHER_MIN_PRECISION = 0.5
+MATCHER_MIN_CORRECT = 20
+FOCAL_OFF = 2.0
+COLMAP_TAGGED = ("planar", "panoramic", "planar_or_panoramic", "watermark", "degenerate")
+
+TAGS = ("error", "few-matches", "low-inliers", "gt-suspect", "planar", "small-baseline", "degenerate", "matcher",
+        "estimator", *(f"colmap-{c.replace('_', '-')}" for c in COLMAP_TAGGED), "focal-implausible")
 HIGHER_IS_BETTER = frozenset({"inlier_ratio", "n_inliers", "gt_inlier_ratio"})
 NOT_RANKING = {"f_dist": "unconditioned ||F - F_gt|| of pixel-coordinate F misranks estimators; "
                          "rank by sed_median, pose_err_deg or nsgd"}
@@ -131,6 +150,42 @@ def tag_pair(rec: dict[str, Any], by: str) -> list[tuple[str, str]]:
     if static >= DEGENERATE_FRACTION:
         out.append(("degenerate", f"{static:.0%} of the matches move < {STATIC_PX:g} px (identical images?): any F "
                     "through the points fits, residuals and inlier counts mean nothing"))
+    suspect = any(t == "gt-suspect" for t, _ in out)  # judged against doubtful labels, neither is to blame
+    return out + ([] if suspect else blame_tags(rec, by, metrics)) + two_view_tags(rec, by)
+
+
+def blame_tags(rec: dict[str, Any], by: str, metrics: dict[str, Any]) -> list[tuple[str, str]]:
+    """``matcher`` or ``estimator`` for a pair ``by`` failed on (see the module doc)."""
+    res = rec.get("result") or {}
+    prec, e = res.get("match_precision") or {}, next((e for e in res.get("estimators", []) if e["name"] == by), None)
+    if not prec or e is None:
+        return []
+    pose, sed = _nan_if_none(metrics.get("pose_err_deg")), _nan_if_none(metrics.get("sed_median"))
+    if not (e["error"] or pose > FAIL_POSE_DEG or sed > FAIL_SED_PX or not math.isfinite(sed)):
+        return []
+    p1, p2 = _nan_if_none(prec.get("px_prec@1")), _nan_if_none(prec.get("px_prec@2"))
+    correct = p1 * res.get("n_matches", 0)
+    failure = e["error"] or f"pose error {pose:.3g} deg, median SED {sed:.3g} px"
+    if p2 < MATCHER_MIN_PRECISION or correct < MATCHER_MIN_CORRECT:
+        return [("matcher", f"{by} failed ({failure}) but only {p2:.0%} of the matches are within 2 px of F_gt "
+                 f"({correct:.0f} within 1 px): the matcher gave it little to find")]
+    return [("estimator", f"{by} failed ({failure}) although {p2:.0%} of the matches are within 2 px of F_gt "
+             f"({correct:.0f} within 1 px): the robust estimation, not the matcher")]
+
+
+def two_view_tags(rec: dict[str, Any], by: str) -> list[tuple[str, str]]:
+    """COLMAP's configuration label and ``focal-implausible`` (see the module doc)."""
+    diag, out = rec.get("diagnostics") or {}, []
+    label = diag.get("two_view", "")
+    if label in COLMAP_TAGGED:
+        out.append((f"colmap-{label.replace('_', '-')}", f"COLMAP's two-view geometry labels the matches {label.upper()}"))
+    f = [_nan_if_none(v) for v in (diag.get("estimators", {}).get(by, {}).get("focals") or [])]
+    K = [np.array((rec.get("result") or {}).get("pair", {}).get(k, np.full((3, 3), np.nan))) for k in ("K_a", "K_b")]
+    if diag.get("focal_observable") and len(f) == 2:
+        ratio = [fi / k[0, 0] for fi, k in zip(f, K)]
+        if not all(1 / FOCAL_OFF <= r <= FOCAL_OFF for r in ratio):  # NaN: imaginary
+            out.append(("focal-implausible", f"{by}'s F gives focals {f[0]:.0f} / {f[1]:.0f} px (Bougnoux; nan: "
+                        f"imaginary) against K's {K[0][0, 0]:.0f} / {K[1][0, 0]:.0f} px"))
     return out
 
 
@@ -379,6 +434,11 @@ def triage_markdown(config, ranked: list[Ranked], top: int, by: str, metric: str
         f"of the inliers; small-baseline: |t| < {SMALL_BASELINE_M} m or K_b R K_a^-1 explains >= {ROTATION_FRACTION:.0%} "
         f"of the matches within {ROTATION_PX:g} px; degenerate: >= {DEGENERATE_FRACTION:.0%} of the matches move < "
         f"{STATIC_PX:g} px.",
+        f"matcher / estimator: `{by}` failed (pose error > {FAIL_POSE_DEG:g} deg or median SED > {FAIL_SED_PX:g} px) and "
+        f"fewer than {MATCHER_MIN_PRECISION:.0%} of the matches lie within 2 px of F_gt or fewer than {MATCHER_MIN_CORRECT} "
+        f"within 1 px (matcher), or not (estimator); colmap-*: COLMAP's two-view configuration of the matches; "
+        f"focal-implausible: Bougnoux focals of `{by}`'s F imaginary or more than {FOCAL_OFF:g}x off K's, where the "
+        "matches determine them.",
         "",
         f"| rank | pair | {metric} | pose_err_deg | tags |",
         "|---|---|---|---|---|",

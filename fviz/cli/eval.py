@@ -66,7 +66,7 @@ def _run_options(
     max_keypoints: o.MaxKeypoints = 2000,
     ratio: o.Ratio = 0.8,
     mutual: o.Mutual = True,
-    threshold: o.Threshold = 1.0,
+    threshold: o.Threshold = "1.0",
     confidence: o.Confidence = 0.999,
     max_iters: o.MaxIters = 10000,
     seed: o.Seed = 0,
@@ -115,13 +115,14 @@ class RunArgs:
             what = "no such folder" if not Path(self.out_dir).exists() else "no run.json there"
             raise FvizError(f"--out-dir {self.out_dir}: no run to {'resume' if resume else 'use'} ({what}); "
                             "select pairs (--kitti-root/--sequence, or --synthetic --seeds A:B) to start one")
+        names, threshold = o.thresholds(tuple(self.estimator or default_estimators), self.threshold)
         if existing is not None:
             if self.estimator:
-                existing = replace(existing, options=replace(existing.options, names=tuple(self.estimator)))
+                existing = replace(existing, options=replace(existing.options, names=names))
             return replace(existing, shard=parse_shard(self.shard) if self.shard else existing.shard,
                            full=existing.full or self.full)
-        opts = EstimatorOptions(tuple(self.estimator or default_estimators), self.features, self.max_keypoints,
-                                self.ratio, self.mutual, self.threshold, self.confidence, self.max_iters, self.seed)
+        opts = EstimatorOptions(names, self.features, self.max_keypoints, self.ratio, self.mutual, threshold,
+                                self.confidence, self.max_iters, self.seed)
         return RunConfig(self.selection(), opts, self.norm, self.eval_threshold, self.full,
                          parse_shard(self.shard) if self.shard else None)
 

@@ -88,7 +88,7 @@ def pair(
     max_keypoints: o.MaxKeypoints = 2000,
     ratio: o.Ratio = 0.8,
     mutual: o.Mutual = True,
-    threshold: o.Threshold = 1.0,
+    threshold: o.Threshold = "1.0",
     confidence: o.Confidence = 0.999,
     max_iters: o.MaxIters = 10000,
     seed: o.Seed = 0,
@@ -132,8 +132,8 @@ def pair(
     from fviz.evaluate import MIN_MATCHES, evaluate_pair
     from fviz.record.writer import write_pair_recording
 
-    opts = EstimatorOptions(tuple(estimator or DEFAULT_ESTIMATORS), features, max_keypoints, ratio, mutual,
-                              threshold, confidence, max_iters, seed)
+    names, threshold = o.thresholds(tuple(estimator or DEFAULT_ESTIMATORS), threshold)
+    opts = EstimatorOptions(names, features, max_keypoints, ratio, mutual, threshold, confidence, max_iters, seed)
     if lines < 0:
         raise FvizError(f"--lines {lines}: must be >= 0")
     if probe < 0:
@@ -213,6 +213,10 @@ def _print_table(result, path: Path) -> None:
     if not result.has_gt:
         console.print("no ground truth: the estimators are compared with each other (SED and inliers over all "
                       "matches; agreement_nsgd = median NSGD to the other estimators)")
+    from fviz.record.writer import precision_lines
+
+    for line in precision_lines(result.match_precision)[1:]:
+        console.print(line)
     console.print(f"recording: {path}")
 
 

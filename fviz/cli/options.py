@@ -33,6 +33,20 @@ def fraction(flag: str) -> Callable:
     return checked(flag, lambda v: math.isfinite(v) and 0 < v <= 1, "must be a number in (0, 1]")
 
 
+def check_threshold(value: str | None) -> str | None:
+    """``--threshold``: a number > 0, ``sweep`` or a comma list of numbers, else a one-line error before any work."""
+    from fviz.estimators.sweep import parse_threshold
+
+    if value is None or value.strip() == "sweep" or "," in value:
+        return value if value is None else (parse_threshold(value) and value)
+    try:
+        number = float(value)
+    except ValueError:
+        raise FvizError(f"--threshold {value!r}: expected a number > 0 (px), a comma list of them, or sweep") from None
+    positive("--threshold")(number)
+    return value
+
+
 def check_recording_path(path: Path | None) -> Path | None:
     """``--out`` names a recording: it must end in .rrd (existing special files are the writer's business)."""
     if path is not None and path.suffix != ".rrd" and not (path.exists() and not path.is_file()):
@@ -60,12 +74,21 @@ Drive = Annotated[Optional[str], typer.Option("--drive", help="Raw drive, e.g. 2
 PairKind = Annotated[str, typer.Option("--pair", help="stereo (two cameras, one frame) or temporal (frame t -> t+step).")]
 Step = Annotated[int, typer.Option("--step", help="Frame step of temporal pairs.")]
 Cams = Annotated[Optional[str], typer.Option("--cams", help="Cameras a,b (default 0,1 for stereo, 0,0 for temporal; 2,3 and 2,2 where only the colour images exist). A gray/colour pair (0,2) is evaluated in gray, with a note.")]
-Estimators = Annotated[Optional[list[str]], typer.Option("--estimator", "-e", help="Repeatable: 7point, 8point, lmeds, ransac, magsac, deep, deep:PATH, module:function, ahead; in eval/triage also mean:SEQ,... and oracle-mean.")]
+Estimators = Annotated[Optional[list[str]], typer.Option("--estimator", "-e", help="Repeatable: 7point, 8point, lmeds, ransac, magsac, usac-default, usac-accurate, usac-prosac, usac-fm8pts, usac-parallel, poselib, poselib-E, colmap, deep, deep:PATH, module:function, ahead; in eval/triage also mean:SEQ,... and oracle-mean.")]
 Features = Annotated[str, typer.Option("--features", help="sift, orb or akaze.")]
 MaxKeypoints = Annotated[int, typer.Option("--max-keypoints", help="Keypoints per image.")]
 Ratio = Annotated[float, typer.Option("--ratio", help="Lowe ratio test.", callback=fraction("--ratio"))]
 Mutual = Annotated[bool, typer.Option("--mutual/--no-mutual", help="Keep only mutual nearest neighbours.")]
-Threshold = Annotated[float, typer.Option("--threshold", help="Inlier threshold of robust estimators (px).", callback=positive("--threshold"))]
+Threshold = Annotated[str, typer.Option("--threshold", metavar="PX|LIST|sweep", help="Inlier threshold of robust estimators (px); 'sweep' (0.25,0.5,1,2,4) or a list 0.5,1,2 runs each robust estimator at every value plus its per-pair oracle (NAME@T, NAME@oracle).", callback=check_threshold)]
+
+
+
+def thresholds(names: tuple[str, ...], threshold: str) -> tuple[tuple[str, ...], float]:
+    """(estimator specs, scalar threshold) of ``--estimator`` and ``--threshold`` (a sweep expands the specs)."""
+    from fviz.estimators.sweep import parse_threshold, sweep_specs
+
+    value, grid = parse_threshold(str(threshold))
+    return (sweep_specs(names, grid) if grid else tuple(names)), value
 Confidence = Annotated[float, typer.Option("--confidence", help="Confidence of robust estimators.", callback=fraction("--confidence"))]
 MaxIters = Annotated[int, typer.Option("--max-iters", help="Iteration cap of robust estimators.")]
 Seed = Annotated[int, typer.Option("--seed", help="Random seed (robust estimators; synthetic scene).")]

@@ -1,12 +1,16 @@
 """KITTI in its two official layouts, auto-detected under ``--kitti-root``.
 
 odometry:  [odometry/]dataset/sequences/NN/{calib.txt, image_0..3/NNNNNN.png},  [odometry/]dataset/poses/NN.txt
-raw:       [raw/]DATE/calib_cam_to_cam.txt,  [raw/]DATE/DATE_drive_NNNN_sync/image_0X/data/NNNNNNNNNN.png
+raw:       [raw/]DATE/calib_{cam_to_cam,imu_to_velo,velo_to_cam}.txt,  [raw/]DATE/DATE_drive_NNNN_sync/image_0X/data/NNNNNNNNNN.png,
+           [raw/]DATE/DATE_drive_NNNN_sync/oxts/data/NNNNNNNNNN.txt
 
 Both are rectified: every camera's projection matrix is P_i = K [I | t_i] in the rectified frame of
 camera 0, so a pair's ground truth follows from two projection matrices of one world frame.
-Stereo pairs (two cameras, one frame) work in both layouts; temporal pairs (one camera, frames
-t -> t+k) need the odometry poses (camera 0 -> world, one 3x4 row per frame).
+Stereo pairs (two cameras, one frame) work in both layouts. Temporal pairs (one camera, frames
+t -> t+k) need camera-0 poses (camera 0 -> world): odometry's poses file, or, in a raw drive, the oxts
+GPS/IMU packets of both frames, as pykitti and the KITTI devkit derive them (:func:`oxts_imu_poses`,
+:func:`cam0_from_imu`). GPS/IMU poses are less accurate than odometry's: a raw temporal pair's
+``gt_accuracy_px`` is :data:`OXTS_GT_ACCURACY_PX`.
 """
 
 from __future__ import annotations
@@ -77,14 +81,19 @@ def _read_key_values(path: Path, what: str) -> dict[str, np.ndarray]:
     return out
 
 
-def _projection(values: dict[str, np.ndarray], key: str, path: Path) -> np.ndarray:
+def _entry(values: dict[str, np.ndarray], key: str, size: int, path: Path) -> np.ndarray:
+    """The ``size`` finite numbers of a calibration entry; a one-line FvizError naming file and entry otherwise."""
     if key not in values:
         raise FvizError(f"calibration {path}: no '{key}' entry")
-    if values[key].size != 12:
-        raise FvizError(f"calibration {path}: '{key}' has {values[key].size} numbers, expected 12")
-    P = values[key].reshape(3, 4)
-    if not np.isfinite(P).all():
+    if values[key].size != size:
+        raise FvizError(f"calibration {path}: '{key}' has {values[key].size} numbers, expected {size}")
+    if not np.isfinite(values[key]).all():
         raise FvizError(f"calibration {path}: '{key}' holds NaN or infinite numbers")
+    return values[key]
+
+
+def _projection(values: dict[str, np.ndarray], key: str, path: Path) -> np.ndarray:
+    P = _entry(values, key, 12, path).reshape(3, 4)
     if not (P[0, 0] > 0 and P[1, 1] > 0 and P[2, 2] != 0):
         raise FvizError(f"calibration {path}: '{key}' is not a rectified projection K [I | t] (focal lengths > 0)")
     return P
@@ -105,6 +114,88 @@ def _decompose(P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return K, np.linalg.solve(K, P[:, 3])
 
 
+# ----------------------------------------------------------------------------------------------- oxts (raw drives)
+
+OXTS_FIELDS = 30  # lat lon alt roll pitch yaw vn ve vf vl vu ax ay az af al au wx wy wz wf wl wu pos_acc vel_acc ...
+EARTH_RADIUS_M = 6378137.0  # the KITTI devkit's (and pykitti's) radius of the Mercator projection
+# How far a raw temporal pair's ground truth can be trusted (px): the OXTS RT3003's poses (0.03 deg roll/pitch,
+# 0.1 deg heading, cm-level RTK positions where available) are coarser than odometry's; see the README's figures.
+OXTS_GT_ACCURACY_PX = 5.0
+
+
+def read_oxts(path: Path) -> np.ndarray:
+    """(30,) numbers of one oxts packet (oxts/dataformat.txt); a one-line FvizError naming file and line otherwise."""
+    lines = [(n, line) for n, line in enumerate(read_text(path, "oxts packet").splitlines(), 1) if line.strip()]
+    if len(lines) != 1:
+        raise FvizError(f"oxts packet {path}: {len(lines)} lines of numbers, expected 1")
+    n, line = lines[0]
+    try:
+        values = np.array(line.split(), dtype=np.float64)
+    except ValueError:
+        raise FvizError(f"oxts packet {path}:{n}: cannot parse the numbers") from None
+    if values.size != OXTS_FIELDS:
+        raise FvizError(f"oxts packet {path}:{n}: {values.size} numbers, expected {OXTS_FIELDS}")
+    if not np.isfinite(values).all():
+        raise FvizError(f"oxts packet {path}:{n}: NaN or infinite numbers")
+    return values
+
+
+def _rotation_rpy(roll: float, pitch: float, yaw: float) -> np.ndarray:
+    """Rz(yaw) Ry(pitch) Rx(roll): the oxts unit's orientation (x forward, y left, z up) in east-north-up."""
+    c, s = np.cos([roll, pitch, yaw]), np.sin([roll, pitch, yaw])
+    Rx = np.array([[1, 0, 0], [0, c[0], -s[0]], [0, s[0], c[0]]])
+    Ry = np.array([[c[1], 0, s[1]], [0, 1, 0], [-s[1], 0, c[1]]])
+    Rz = np.array([[c[2], -s[2], 0], [s[2], c[2], 0], [0, 0, 1]])
+    return Rz @ Ry @ Rx
+
+
+def oxts_imu_poses(packets: np.ndarray) -> np.ndarray:
+    """(N, 30) oxts packets -> (N, 4, 4) IMU -> world, T_w_imu as pykitti and the devkit compute it: Mercator
+    positions with the scale cos(lat) of the first packet, orientation Rz(yaw) Ry(pitch) Rx(roll).  World: east,
+    north, up (m) from the first packet's position (as pykitti: keeps the ~5e6 m northings out of later products)."""
+    lat, lon, alt = packets[:, 0], packets[:, 1], packets[:, 2]
+    scale = np.cos(lat[0] * np.pi / 180)
+    T = np.tile(np.eye(4), (len(packets), 1, 1))
+    T[:, 0, 3] = scale * lon * np.pi * EARTH_RADIUS_M / 180
+    T[:, 1, 3] = scale * EARTH_RADIUS_M * np.log(np.tan((90 + lat) * np.pi / 360))
+    T[:, 2, 3] = alt
+    T[:, :3, 3] -= T[0, :3, 3].copy()
+    T[:, :3, :3] = [_rotation_rpy(*p[3:6]) for p in packets]
+    return T
+
+
+def _rigid(path: Path) -> np.ndarray:
+    """4x4 [R | T] of a raw calibration file (calib_imu_to_velo.txt, calib_velo_to_cam.txt)."""
+    values = _read_key_values(path, "calibration")
+    T = np.eye(4)
+    T[:3, :3] = _entry(values, "R", 9, path).reshape(3, 3)
+    T[:3, 3] = _entry(values, "T", 3, path)
+    return T
+
+
+def cam0_from_imu(date_dir: Path) -> np.ndarray:
+    """4x4 T_cam0rect_imu = R_rect_00 @ T_velo_to_cam @ T_imu_to_velo from a raw drive's date folder."""
+    cam_to_cam = date_dir / "calib_cam_to_cam.txt"
+    R_rect = np.eye(4)
+    R_rect[:3, :3] = _entry(_read_key_values(cam_to_cam, "calibration"), "R_rect_00", 9, cam_to_cam).reshape(3, 3)
+    return R_rect @ _rigid(date_dir / "calib_velo_to_cam.txt") @ _rigid(date_dir / "calib_imu_to_velo.txt")
+
+
+def oxts_camera_poses(oxts_dir: Path, date_dir: Path, num_frames: int) -> np.ndarray:
+    """(N, 4, 4) rectified camera 0 -> world of a raw drive, world = camera 0 at the first frame with a packet;
+    NaN for frames without one.  N covers ``num_frames`` and every packet."""
+    if not oxts_dir.is_dir():
+        raise FvizError(f"temporal pairs need ground-truth poses: missing oxts folder {oxts_dir} (use --pair stereo)")
+    files = {int(p.stem): p for p in oxts_dir.glob("*.txt") if p.stem.isdigit()}
+    if not files:
+        raise FvizError(f"temporal pairs need ground-truth poses: no oxts packets in {oxts_dir} (use --pair stereo)")
+    frames = sorted(files)
+    T_w_cam = oxts_imu_poses(np.stack([read_oxts(files[f]) for f in frames])) @ np.linalg.inv(cam0_from_imu(date_dir))
+    poses = np.full((max(num_frames, frames[-1] + 1), 4, 4), np.nan)
+    poses[frames] = np.linalg.inv(T_w_cam[0]) @ T_w_cam
+    return poses
+
+
 @dataclass
 class KittiSequence:
     """One odometry sequence or one raw drive: frames, cameras, poses, and pairs."""
@@ -116,7 +207,8 @@ class KittiSequence:
     calib_path: Path
     calib_key: str  # "P{cam}" | "P_rect_0{cam}"
     projections: dict[int, np.ndarray]
-    poses_path: Path | None = None
+    poses_path: Path | None = None  # odometry's poses file
+    oxts_dir: Path | None = None  # a raw drive's oxts/data
 
     def image_path(self, cam: int, frame: int) -> Path:
         digits = 6 if self.source == "odometry" else 10
@@ -147,7 +239,13 @@ class KittiSequence:
 
     @cached_property
     def poses(self) -> np.ndarray:
-        """(N, 4, 4) camera-0 -> world transforms, one per frame."""
+        """(N, 4, 4) camera-0 -> world transforms, one per frame.
+
+        Raw drives: from every oxts packet at once (:func:`oxts_camera_poses`; NaN for a frame without one, which
+        :meth:`pose` names when a pair needs it); a corrupt packet is an error for the whole drive, as a NaN in an
+        odometry poses file is."""
+        if self.oxts_dir is not None:
+            return oxts_camera_poses(self.oxts_dir, self.calib_path.parent, self.num_frames)
         if self.poses_path is None:
             raise FvizError(
                 f"temporal pairs need ground-truth poses, which the {self.source} layout of {self.name} lacks "
@@ -166,6 +264,27 @@ class KittiSequence:
         T = np.tile(np.eye(4), (len(rows), 1, 1))
         T[:, :3, :] = rows.reshape(-1, 3, 4)
         return T
+
+    @property
+    def pose_frames(self) -> set[int]:
+        """Frames with a ground-truth pose; none where the layout has no poses file or oxts folder at all."""
+        source = self.oxts_dir or self.poses_path
+        if source is None or not source.exists():
+            return set()
+        return {int(f) for f in np.flatnonzero(np.isfinite(self.poses).all(axis=(1, 2)))}
+
+    def pose(self, frame: int) -> np.ndarray:
+        """4x4 camera 0 -> world at ``frame``; a one-line FvizError naming the missing poses line or oxts packet."""
+        T = self.poses
+        if frame < len(T) and np.isfinite(T[frame]).all():
+            return T[frame]
+        if self.oxts_dir is not None:
+            raise FvizError(f"missing oxts packet of frame {frame}: {self.oxts_dir / f'{frame:010d}.txt'}")
+        raise FvizError(f"poses {self.poses_path}: no pose for frame {frame} ({len(T)} lines)")
+
+    def gt_accuracy_px(self, kind: str) -> float:
+        """How far a pair's ground truth can be trusted: calibration, odometry poses, or GPS/IMU (oxts)."""
+        return OXTS_GT_ACCURACY_PX if kind == "temporal" and self.oxts_dir is not None else GT_ACCURACY_PX[kind]
 
     def check_frame(self, frame: int, cams: tuple[int, ...], field: str = "--frame") -> None:
         n = self.frames_of(cams)
@@ -215,10 +334,8 @@ class KittiSequence:
         E = np.eye(4)
         E[:3, 3] = t
         if frame != ref_frame:
-            T = self.poses
-            if max(frame, ref_frame) >= len(T):
-                raise FvizError(f"poses {self.poses_path}: no pose for frame {max(frame, ref_frame)} ({len(T)} lines)")
-            E = E @ np.linalg.inv(T[frame]) @ T[ref_frame]
+            T_ref = self.pose(ref_frame)
+            E = E @ np.linalg.inv(self.pose(frame)) @ T_ref
         return E
 
     def pair(self, frame: int, kind: str = "stereo", step: int = 1, cams: tuple[int, int] | None = None) -> Pair:
@@ -250,7 +367,7 @@ class KittiSequence:
             )
         return Pair(
             id=pid, image_a=image_a, image_b=image_b, K_a=K_a, K_b=K_b, R=R, t=t, F_gt=F,
-            gt_accuracy_px=GT_ACCURACY_PX[pid.kind], extra={"path_a": str(path_a), "path_b": str(path_b)}, notes=notes,
+            gt_accuracy_px=self.gt_accuracy_px(pid.kind), extra={"path_a": str(path_a), "path_b": str(path_b)}, notes=notes,
         )
 
 
@@ -308,7 +425,7 @@ def open_raw(root: Path, drive: str) -> KittiSequence:
     projections = _projections(calib, "P_rect_0{cam}")
     return KittiSequence(
         source="raw", name=name, root=root, calib_path=calib, calib_key="P_rect_0{cam}", projections=projections,
-        image_dirs={cam: drive_dir / f"image_0{cam}" / "data" for cam in projections},
+        image_dirs={cam: drive_dir / f"image_0{cam}" / "data" for cam in projections}, oxts_dir=drive_dir / "oxts" / "data",
     )
 
 

@@ -1,4 +1,17 @@
-"""Classical estimators from matches, all through OpenCV (points1 = x_a, points2 = x_b, so x_b^T F x_a = 0)."""
+"""Classical estimators from matches, all through OpenCV (points1 = x_a, points2 = x_b, so x_b^T F x_a = 0).
+
+What ``--threshold`` (px) means to each (measured: the returned masks equal these tests on KITTI pairs):
+
+- ``ransac`` (FM_RANSAC): the larger of the two point-to-epipolar-line distances, < threshold;
+- ``magsac`` and the ``usac-*`` family: the Sampson distance, < threshold (MAGSAC++ marginalizes over noise
+  scales up to it, so it is a maximum rather than a cut);
+- ``lmeds``: none (least median of squares); ``7point`` / ``8point``: only their reported inlier mask.
+
+``usac-*`` are OpenCV's USAC presets as image-matching-webui offers them (``cv2.USAC_DEFAULT`` ...): the flag
+API fixes OpenCV's random state, so they are deterministic but ignore ``--seed``; ``usac-parallel`` runs
+several threads and may differ between runs. ``usac-prosac`` samples the best matches first: fviz's
+matches come best first (ascending descriptor distance), the order PROSAC needs.
+"""
 
 from __future__ import annotations
 
@@ -9,7 +22,9 @@ import numpy as np
 from fviz.errors import FvizError
 from fviz.geometry import sampson_distance
 
-MIN_MATCHES = {"7point": 7, "8point": 8, "lmeds": 8, "ransac": 8, "magsac": 8}
+USAC_FLAGS = {"usac-default": "USAC_DEFAULT", "usac-accurate": "USAC_ACCURATE", "usac-prosac": "USAC_PROSAC",
+              "usac-fm8pts": "USAC_FM_8PTS", "usac-parallel": "USAC_PARALLEL"}
+MIN_MATCHES = {"7point": 7, "8point": 8, "lmeds": 8, "ransac": 8, "magsac": 8, **dict.fromkeys(USAC_FLAGS, 8)}
 
 
 @dataclass(frozen=True)
@@ -69,6 +84,8 @@ def eight_point(x_a, x_b, cfg: RobustConfig):
 
 
 def _opencv_robust(method_flag: int, name: str):
+    """An OpenCV robust method by flag (FM_RANSAC, FM_LMEDS, USAC_*), seeded where OpenCV lets it be."""
+
     def estimate(x_a, x_b, cfg: RobustConfig):
         import cv2
 
@@ -115,6 +132,7 @@ def _methods():
         "lmeds": _opencv_robust(cv2.FM_LMEDS, "lmeds"),
         "ransac": _opencv_robust(cv2.FM_RANSAC, "ransac"),
         "magsac": magsac,
+        **{name: _opencv_robust(getattr(cv2, flag), name) for name, flag in USAC_FLAGS.items()},
     }
 
 

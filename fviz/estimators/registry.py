@@ -1,7 +1,11 @@
 """One registry from a name to an estimator.
 
-- a built-in name: ``7point``, ``8point``, ``lmeds``, ``ransac``, ``magsac``, ``deep`` (the bundled model),
-  ``ahead`` (the straight-ahead baseline, from the cameras alone);
+- a built-in name: ``7point``, ``8point``, ``lmeds``, ``ransac``, ``magsac``, OpenCV's USAC presets
+  ``usac-default``, ``usac-accurate``, ``usac-prosac``, ``usac-fm8pts``, ``usac-parallel``
+  (:mod:`fviz.estimators.classical`), ``poselib``, ``poselib-E``, ``colmap`` (:mod:`fviz.estimators.external`),
+  ``deep`` (the bundled model), ``ahead`` (the straight-ahead baseline, from the cameras alone);
+- ``NAME@T``: a robust estimator at threshold T px, ``NAME@oracle``: the best of a grid per pair, chosen with
+  the ground truth (:mod:`fviz.estimators.sweep`; ``--threshold sweep`` writes them);
 - ``deep:PATH``: a checkpoint trained by ``fviz train``;
 - ``module:function``: a user's own ``function(pair, x_a, x_b) -> F | (F, inlier_mask)``;
 - run-level baselines (eval and triage only; :mod:`fviz.run.config` resolves them on the selection):
@@ -19,6 +23,7 @@ from typing import Callable
 from fviz.errors import FvizError
 from fviz.estimators.base import EstimateFn
 from fviz.estimators.classical import MIN_MATCHES, RobustConfig, classical
+from fviz.estimators.external import METHODS as EXTERNAL, external
 
 
 def _deep(spec: str, cfg: RobustConfig) -> EstimateFn:
@@ -35,6 +40,7 @@ def _ahead(spec: str, cfg: RobustConfig) -> EstimateFn:
 
 BUILTINS: dict[str, Callable[[str, RobustConfig], EstimateFn]] = {
     **{name: (lambda spec, cfg: classical(spec, cfg)) for name in MIN_MATCHES},
+    **dict.fromkeys(EXTERNAL, external),  # poselib / pycolmap load on the first estimate
     "deep": _deep,
     "ahead": _ahead,
 }
@@ -57,7 +63,9 @@ def is_baseline(name: str) -> bool:
 
 def is_oracle(name: str) -> bool:
     """Whether an estimator (display name) has seen the evaluated labels."""
-    return name == ORACLE_MEAN
+    from fviz.estimators.sweep import ORACLE_SUFFIX
+
+    return name == ORACLE_MEAN or name.endswith(ORACLE_SUFFIX)
 
 
 def needs_matches(spec: str) -> bool:
@@ -83,6 +91,10 @@ def get_estimator(spec: str, cfg: RobustConfig = RobustConfig()) -> EstimateFn:
     if spec == "constant":
         raise FvizError("--estimator constant: renamed oracle-mean (the mean ground-truth F of the evaluated pairs has "
                         "seen the test labels); for a fair prior use ahead or mean:SEQ,... of other sequences")
+    from fviz.estimators.sweep import split_threshold, threshold_estimator
+
+    if split_threshold(spec)[1] is not None:
+        return threshold_estimator(spec, cfg, get_estimator)
     if is_run_baseline(spec):
         raise FvizError(f"--estimator {spec}: a run-level baseline (computed over a selection of pairs): use it with "
                         "fviz eval or triage")
@@ -99,6 +111,11 @@ def _name_levels(spec: str) -> list[str]:
     import re
     from pathlib import PurePath
 
+    from fviz.estimators.sweep import split_threshold, threshold_name
+
+    base, th = split_threshold(spec)
+    if th is not None:
+        return [re.sub(r"[^A-Za-z0-9_.-]+", "-", threshold_name(base, th))]
     head, _, rest = spec.partition(":")
     if not rest:
         return [spec]

@@ -32,6 +32,7 @@ from fviz.geometry.pose import (
     rotation_error_deg,
     translation_error_deg,
 )
+from fviz.geometry.precision import PRECISION_KEYS, match_precision, normalized_epipolar_distance
 from fviz.geometry.residuals import algebraic, sampson_distance, symmetric_epipolar_distance
 
 __all__ = [
@@ -40,5 +41,5 @@ __all__ = [
     "NORMS", "Epipole", "NormalizationError", "algebraic", "border_point", "clip_lines", "describe_epipole",
     "enforce_rank2", "epipoles", "f_distance", "fundamental_from_motion", "fundamental_from_projections",
     "homogeneous", "is_valid", "lines_in_a", "lines_in_b", "normalize", "sampson_distance", "skew",
-    "symmetric_epipolar_distance",
+    "symmetric_epipolar_distance", "PRECISION_KEYS", "match_precision", "normalized_epipolar_distance",
 ]

@@ -12,7 +12,12 @@ integers).  The normalization layer comes after the head (:mod:`fviz.models.norm
   and the motion X_b = R X_a + t, i.e. exactly :func:`fviz.geometry.fundamental_from_motion`.
   Output scaling (what the FC predicts): f_i = max(H, W) exp(2 tanh(raw_i / 2)) (positive, bounded),
   angles = 0.1 rad x raw (rotations between two views are small; this only sets the output unit),
-  t = raw / ||raw|| (F is homogeneous in t: the unit vector keeps the gradients well scaled).
+  t = raw / ||raw|| (F is homogeneous in t).  The direction moves by (step of raw) / ||raw||: a raw t
+  that grew long (the synthetic model's is ~(-0.3, 0, 16.7)) turns 16x slower than the angles, and a
+  stereo target is then absorbed by a yaw bias.  Training therefore keeps ||raw|| near 1:
+  :meth:`RecHead.unit_translation_` rescales the t outputs of a loaded model so that their median
+  length is 1 (F unchanged), and the loss adds ``train.t_norm_weight * mean(log ||raw||)^2``
+  (:attr:`RecHead.t_raw_norm`, the lengths of the last forward pass).
   Rank 2 by construction ([t]x has rank 2).
 - :class:`EpiHead` (k = 8, the epipolar parametrization): two columns c1, c2 and (alpha, beta);
   the third column is alpha c1 + beta c2, so F (alpha, beta, -1)^T = 0: rank 2 by construction, and
@@ -143,15 +148,33 @@ class RecHead(_Head):
     """FC -> (f_a, f_b, rx, ry, rz, tx, ty, tz) -> K_b^-T [t]x R K_a^-1.  (B, n_in) -> (B, 3, 3), rank 2."""
 
     n_out = 8
+    t_raw_norm: torch.Tensor | None = None  # (B,) ||raw t|| of the last forward pass (the loss keeps it near 1)
 
     def to_fundamental(self, y: torch.Tensor) -> torch.Tensor:
         scale = float(max(self.input_hw))
         f = scale * torch.exp(FOCAL_RANGE * torch.tanh(y[:, 0:2] / FOCAL_RANGE))
         angles = ANGLE_UNIT * y[:, 2:5]
         t = y[:, 5:8]
-        t = t / t.norm(dim=1, keepdim=True).clamp_min(1e-8)
+        norm = t.norm(dim=1, keepdim=True).clamp_min(1e-8)
+        self.t_raw_norm = norm[:, 0]
+        t = t / norm
         cx, cy = principal_point(self.input_hw)
         return fundamental_from_params(f[:, 0], f[:, 1], angles, t, cx, cy)
+
+
+    @torch.no_grad()
+    def unit_translation_(self, features: torch.Tensor) -> float:
+        """Rescale the t outputs (last FC rows 5..7) so that the median ||raw t|| over ``features`` (B, n_in)
+        is 1: every predicted F is unchanged, only how fast t turns during training.  Returns the factor."""
+        was_training = self.training
+        self.eval()
+        raw = self.fc(features)[:, 5:8].float()
+        self.train(was_training)
+        factor = 1.0 / float(raw.norm(dim=1).median().clamp_min(1e-8))
+        last = self.fc[-1]
+        last.weight[5:8] *= factor
+        last.bias[5:8] *= factor
+        return factor
 
 
 class EpiHead(_Head):

@@ -214,12 +214,15 @@ class FNet(nn.Module):
                 f"{self.variant}: image {which} must be (B, 1, {H}, {W}) (the model's input size), got {tuple(img.shape)}"
             )
 
-    def unnormalized(self, img_a: torch.Tensor, img_b: torch.Tensor) -> torch.Tensor:
-        """F before the normalization layer.  (B, 1, H, W) x 2 -> (B, 3, 3) float32."""
+    def features(self, img_a: torch.Tensor, img_b: torch.Tensor) -> torch.Tensor:
+        """The head's input: pooled features.  (B, 1, H, W) x 2 -> (B, n_in)."""
         self._check(img_a, "a")
         self._check(img_b, "b")
-        x = self.pool(self.backbone(img_a, img_b))
-        return self.head(x.flatten(1))
+        return self.pool(self.backbone(img_a, img_b)).flatten(1)
+
+    def unnormalized(self, img_a: torch.Tensor, img_b: torch.Tensor) -> torch.Tensor:
+        """F before the normalization layer.  (B, 1, H, W) x 2 -> (B, 3, 3) float32."""
+        return self.head(self.features(img_a, img_b))
 
     def forward(self, img_a: torch.Tensor, img_b: torch.Tensor, strict_norm: bool | None = None) -> torch.Tensor:
         F = self.unnormalized(img_a, img_b)

@@ -223,6 +223,18 @@ def _pair_sentence(result: PairResult) -> str:
     return head + f"ground truth: {_GROUND_TRUTH.get(gt, gt)}{accuracy}. {result.n_matches} matches, {where}."
 
 
+def precision_lines(prec: dict[str, float]) -> list[str]:
+    """The match precision of a pair (fviz.geometry.precision) as one line, or none without it."""
+    if not prec:
+        return []
+    pct = lambda k: "n/a" if not np.isfinite(prec.get(k, np.nan)) else f"{prec[k]:.0%}"  # noqa: E731
+    px = [k for k in prec if k.startswith("px_prec@")]
+    epi = [k for k in prec if k.startswith("epi_prec@")]
+    return ["", "Match precision, before any estimator: " + ", ".join(f"{pct(k)} within {k.partition('@')[2]} px" for k in px)
+            + " of F_gt; glue-factory's epi_prec@" + "/".join(k.partition("@")[2] for k in epi) + ": "
+            + " / ".join(pct(k) for k in epi) + "."]
+
+
 def pair_markdown(result: PairResult, probe_steps: int = 0) -> str:
     """The summary panel: the pair, a compact table (every metric is in the JSON), hints, F matrices last."""
     p = result.pair
@@ -231,6 +243,7 @@ def pair_markdown(result: PairResult, probe_steps: int = 0) -> str:
         f"**{p['name']}**",
         "",
         _pair_sentence(result),
+        *precision_lines(result.match_precision),
         "",
         "| F | " + " | ".join(t for _, t in columns) + " | s |",
         "|---|" + "--:|" * (len(columns) + 1),

@@ -72,6 +72,8 @@ class _Stats:
         self.order: dict[str, None] = {}
         self.per_pair: dict[str, array] = {}
         self.ground_truth: set[str] = set()  # what the pairs' ground truth is (pose, F, correspondences, none)
+        self.precision: dict[str, array] = {}  # match precision per pair (fviz.geometry.precision)
+        self.oracle_choice: dict[str, dict[str, int]] = {}  # sweep oracle -> {the grid entry it chose: pairs}
 
     @property
     def known(self) -> dict[str, bool]:
@@ -81,6 +83,10 @@ class _Stats:
         self.pairs += 1
         self.ground_truth.update(row["ground_truth"] for row in rows[:1] if row.get("ground_truth"))
         self.pair_errors += rec["error"] is not None
+        for key, v in ((rec.get("result") or {}).get("match_precision") or {}).items():
+            if v is not None:
+                self.precision.setdefault(key, array("d")).append(float(v))
+        self._add_oracle_choices((rec.get("result") or {}).get("estimators", []))
         for row in rows:
             est = row["estimator"]
             self.order[est] = None
@@ -93,6 +99,18 @@ class _Stats:
                 v = row.get(key)
                 if isinstance(v, float) and math.isfinite(v):
                     self.values.setdefault((est, key), array("d")).append(v)
+
+    def _add_oracle_choices(self, ests: list[dict[str, Any]]) -> None:
+        """Which threshold each sweep oracle chose on a pair: the grid entry with the very same F."""
+        from fviz.estimators.sweep import ORACLE_SUFFIX
+
+        for e in ests:
+            if e["name"].endswith(ORACLE_SUFFIX) and e.get("F") is not None:
+                prefix = e["name"][: -len(ORACLE_SUFFIX)] + "-th"
+                same = next((o["name"] for o in ests if o["name"].startswith(prefix) and o is not e and o.get("F") == e["F"]), None)
+                if same is not None:
+                    counts = self.oracle_choice.setdefault(e["name"], {})
+                    counts[same] = counts.get(same, 0) + 1
 
     def get(self, est: str, key: str) -> np.ndarray:
         return np.asarray(self.values.get((est, key), []), dtype=np.float64)
@@ -207,6 +225,7 @@ def summary_markdown(config: RunConfig, stats: _Stats) -> str:
             vals = [v.mean(), np.median(v), *(np.percentile(v, p) for p in PERCENTILES)] if len(v) else [math.nan] * (2 + len(PERCENTILES))
             lines.append(f"| {_display(est)} | {stats.pairs - stats.failed.get(est, 0)} | {stats.failed.get(est, 0)} | "
                          + " | ".join(_fmt(x) for x in vals) + " |")
+    lines += ["", *time_markdown(stats, ests), "", *precision_markdown(stats), *sweep_markdown(config, stats)]
     lines += [
         "",
         "## Paper-style table",
@@ -223,6 +242,86 @@ def summary_markdown(config: RunConfig, stats: _Stats) -> str:
         lines.append(f"| {_display(est)} | " + " | ".join(_fmt(v.mean()) if len(v) else "n/a" for v in vals) + " |")
     lines += ["", EPI_CAVEAT]
     return "\n".join(lines) + "\n"
+
+
+def time_table(stats: _Stats, ests: Iterable[str]) -> dict[str, dict[str, float]]:
+    """Per estimator (the ground truth left out), median and p90 of its seconds per pair, failures included."""
+    out = {}
+    for est in ests:
+        v = stats.get(est, "seconds")
+        if est != GT_NAME:
+            out[est] = {"median": float(np.median(v)) if len(v) else math.nan,
+                        "p90": float(np.percentile(v, 90)) if len(v) else math.nan}
+    return out
+
+
+def time_markdown(stats: _Stats, ests: Iterable[str]) -> list[str]:
+    lines = ["## Time per pair", "", "Wall time of the estimator's call alone (not features or matching), ms; the first "
+             "pair of each worker also pays the import of its library (PoseLib, pycolmap, torch).", "",
+             "| estimator | median ms | p90 ms |", "|---|---|---|"]
+    for est, t in time_table(stats, ests).items():
+        lines.append(f"| {est} | {_fmt(1e3 * t['median'])} | {_fmt(1e3 * t['p90'])} |")
+    return lines
+
+
+def precision_markdown(stats: _Stats) -> list[str]:
+    """Match precision before any estimator, mean and median over pairs."""
+    if not stats.precision:
+        return []
+    lines = ["## Match precision (before any estimator)", "",
+             "Per pair, the share of matches within 1 / 2 / 4 px of the ground-truth epipolar lines (`px_prec`) and under "
+             "glue-factory's normalized epipolar error (`epi_prec`, units of the focal length: 1e-3 is ~0.7 px on KITTI); "
+             "over pairs:", "", "| measure | mean | median |", "|---|---|---|"]
+    for key, v in stats.precision.items():
+        v = np.asarray(v)
+        lines.append(f"| {key} | {_fmt(float(v.mean()))} | {_fmt(float(np.median(v)))} |")
+    return lines
+
+
+def sweep_curves(config: RunConfig, stats: _Stats) -> dict[str, dict[str, Any]]:
+    """Per swept estimator: {threshold text: (display name, standard figures)} in the order run, the per-pair
+    oracle's name, and the threshold best over the run by AUC@10 (chosen with the ground truth: an oracle too)."""
+    from fviz.estimators.registry import display_names
+    from fviz.estimators.sweep import ORACLE, split_threshold
+
+    figures = standard_figures(stats.per_pair, list(stats.order))
+    out: dict[str, dict[str, Any]] = {}
+    for spec, name in zip(config.options.names, display_names(config.options.names)):
+        base, th = split_threshold(spec)
+        if th is None or name not in figures:
+            continue
+        entry = out.setdefault(base, {"curve": {}, "oracle": None, "best": None})
+        if th.startswith(ORACLE):
+            entry["oracle"] = name
+        else:
+            entry["curve"][th] = (name, figures[name])
+    for entry in out.values():
+        if entry["curve"]:
+            entry["best"] = max(entry["curve"], key=lambda t: (entry["curve"][t][1]["pose_auc"].get("10", -1), -float(t)))
+    return out
+
+
+def sweep_markdown(config: RunConfig, stats: _Stats) -> list[str]:
+    curves = sweep_curves(config, stats)
+    if not curves:
+        return []
+    lines = ["", "## Threshold sweep", "",
+             "Each robust estimator at every threshold (px, in its own unit: see README's estimator table). *best over "
+             "the run*: the threshold of the highest AUC@10°; `-th-oracle`: per pair, the threshold whose F is closest "
+             "to the ground truth. Both are chosen with the labels (oracles, as glue-factory's `ransac_th=-1`).", "",
+             "| estimator | threshold px | AUC@10° | median SED px | |", "|---|---|---|---|---|"]
+    figures = standard_figures(stats.per_pair, list(stats.order))
+    for base, entry in curves.items():
+        for th, (name, f) in entry["curve"].items():
+            lines.append(f"| {base} | {th} | {_fmt(f['pose_auc'].get('10', math.nan))} | {_fmt(f['sed_median'])} | "
+                         f"{'*best over the run* (oracle)' if th == entry['best'] else ''} |")
+        if entry["oracle"]:
+            f = figures[entry["oracle"]]
+            chosen = stats.oracle_choice.get(entry["oracle"], {})
+            picks = ", ".join(f"{th} px {chosen[n]}" for th, (n, _) in entry["curve"].items() if chosen.get(n))
+            lines.append(f"| {base} | per-pair oracle | {_fmt(f['pose_auc'].get('10', math.nan))} | {_fmt(f['sed_median'])} "
+                         f"| oracle; chosen per pair: {picks or '-'} |")
+    return lines
 
 
 EPI_CAVEAT = (
@@ -305,6 +404,13 @@ def summary_document(config: RunConfig, stats: _Stats) -> dict[str, Any]:
         "norm": config.norm, "eval_threshold_px": config.eval_threshold,
         "estimators": {e: {k: ({kk: clean(vv) for kk, vv in v.items()} if isinstance(v, dict) else clean(v))
                            for k, v in f.items()} for e, f in figures.items()},
+        "seconds": {e: {k: clean(v) for k, v in t.items()} for e, t in time_table(stats, ests).items()},
+        "match_precision": {k: clean(float(np.mean(v))) for k, v in stats.precision.items()},
+        "threshold_sweep": {b: {"best_over_run_px": e["best"], "oracle": e["oracle"],
+                                "names": {t: n for t, (n, _) in e["curve"].items()},
+                                "oracle_chose": {t: stats.oracle_choice.get(e["oracle"], {}).get(n, 0)
+                                                 for t, (n, _) in e["curve"].items()}}
+                            for b, e in sweep_curves(config, stats).items()},
     }
 
 

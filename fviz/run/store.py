@@ -73,6 +73,7 @@ def result_from_record(rec: dict[str, Any], config: RunConfig) -> PairResult:
         pair=d["pair"], norm=d["norm"], eval_threshold_px=d["eval_threshold_px"], F_gt=None if d["F_gt"] is None else np.array(d["F_gt"]),
         n_keypoints=tuple(d["n_keypoints"]), n_matches=d["n_matches"], n_eval=d["n_eval"], timings=d["timings"],
         estimators=ests, notes=d.get("notes", []),
+        match_precision={k: _float(v) for k, v in d.get("match_precision", {}).items()},
     )
 
 

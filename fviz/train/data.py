@@ -44,6 +44,7 @@ import torch
 from fviz.errors import FvizError
 from fviz.geometry.fundamental import NormalizationError, normalize
 
+MAX_CACHED_FRAMES = 4000  # decoded KITTI frames kept per process (~1.9 GB at 1242 x 375)
 SEED_SPAN = 10**7  # synthetic seeds of one recipe seed: [base, base + SEED_SPAN)
 
 
@@ -323,13 +324,17 @@ def frames_of(ds, cam: int) -> set[int]:
     return {int(p.stem) for p in d.glob("*.png") if p.stem.isdigit()}
 
 
-def load_kitti_pair(ds, item: KittiItem):
-    """The :class:`fviz.data.pair.Pair` of an item (forward direction; ``reverse`` is applied by the caller)."""
+def kitti_pair_id(ds, item: KittiItem):
+    """The :class:`fviz.data.pair.PairId` of an item (forward direction; ``reverse`` is applied by the caller)."""
     from fviz.data.pair import PairId
 
     frame_b = item.frame + (item.step if item.kind == "temporal" else 0)
-    pid = PairId(ds.source, ds.name, item.kind, item.frame, frame_b, item.cams[0], item.cams[1], str(ds.root))
-    return ds.load(pid)
+    return PairId(ds.source, ds.name, item.kind, item.frame, frame_b, item.cams[0], item.cams[1], str(ds.root))
+
+
+def load_kitti_pair(ds, item: KittiItem):
+    """The :class:`fviz.data.pair.Pair` of an item (forward direction; ``reverse`` is applied by the caller)."""
+    return ds.load(kitti_pair_id(ds, item))
 
 
 class KittiPairs(torch.utils.data.Dataset):
@@ -347,6 +352,7 @@ class KittiPairs(torch.utils.data.Dataset):
         self.augment = augment
         self.seed = int(seed)
         self._open: dict = {}
+        self._images: dict[str, np.ndarray] = {}
 
     def __len__(self) -> int:
         return len(self.items)
@@ -354,6 +360,7 @@ class KittiPairs(torch.utils.data.Dataset):
     def __getstate__(self):
         state = dict(self.__dict__)
         state["_open"] = {}
+        state["_images"] = {}
         return state
 
     def _dataset(self, item: KittiItem):
@@ -364,11 +371,31 @@ class KittiPairs(torch.utils.data.Dataset):
             self._open[k] = open_dataset(item.root, **{item.key: item.name})
         return self._open[k]
 
+    def _gray(self, path) -> np.ndarray:
+        """A frame's full-resolution gray image, decoded once per process (a frame is in many pairs:
+        steps 1-3, both directions, stereo): (H, W) uint8.  ~0.47 MB a KITTI frame."""
+        key = str(path)
+        if key not in self._images:
+            import cv2
+
+            from fviz.data.kitti import read_image
+
+            image = read_image(path)
+            if len(self._images) >= MAX_CACHED_FRAMES:
+                self._images.pop(next(iter(self._images)))
+            self._images[key] = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY) if image.ndim == 3 else image
+        return self._images[key]
+
     def load(self, i: int, rng: np.random.Generator | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(img_a (h, w), img_b (h, w), F (3, 3) normalized) as float32 numpy at the input size."""
         item = self.items[i]
-        pair = load_kitti_pair(self._dataset(item), item)
-        image_a, image_b, F = pair.image_a, pair.image_b, pair.F_gt
+        ds = self._dataset(item)
+        pid = kitti_pair_id(ds, item)
+        F = ds.ground_truth(pid)[4]
+        image_a, image_b = (self._gray(ds.image_path(c, f)) for c, f in ((pid.cam_a, pid.frame_a), (pid.cam_b, pid.frame_b)))
+        if image_a.shape != image_b.shape:
+            raise FvizError(f"{item.label}: images of different sizes ({image_a.shape[1]}x{image_a.shape[0]} and "
+                            f"{image_b.shape[1]}x{image_b.shape[0]})")
         if item.reverse:
             image_a, image_b, F = image_b, image_a, F.T
         aug = self.augment if rng is not None else Augment()
@@ -386,17 +413,18 @@ class KittiPairs(torch.utils.data.Dataset):
         return img_a, img_b, F
 
 
-def gt_agreement_px(pair) -> float:
+def gt_agreement_px(pair, features=None) -> float:
     """How well a pair's ground truth agrees with its images: median SED (px) of the SIFT + MAGSAC++ inliers
-    to F_gt (NaN with fewer than 16 inliers).  The sample data's README: 0.1-0.9 px when the poses are good."""
+    to F_gt (NaN with fewer than 16 inliers).  The sample data's README: 0.1-0.9 px when the poses are good.
+    ``features``: a :class:`fviz.estimators.features.FeatureCache` shared across pairs (a frame is detected once)."""
     import cv2
 
     from fviz.estimators.features import FeatureCache, FeatureConfig, match
     from fviz.geometry import symmetric_epipolar_distance
 
-    cfg = FeatureConfig()
-    fa, fb = FeatureCache(cfg).get_pair(pair.id.key_a, pair.image_a, pair.id.key_b, pair.image_b)
-    m = match(fa, fb, cfg)
+    features = features or FeatureCache(FeatureConfig(), threads=1)
+    fa, fb = features.get_pair(pair.id.key_a, pair.image_a, pair.id.key_b, pair.image_b)
+    m = match(fa, fb, features.cfg)
     if len(m) < 16:
         return float("nan")
     _, mask = cv2.findFundamentalMat(m.x_a, m.x_b, cv2.USAC_MAGSAC, 1.0, 0.999, 10000)
@@ -441,20 +469,40 @@ def _camera_pairs(recipe, kind: str, available: list[int]) -> list[tuple[int, in
     return [(a, b) for a in cams for b in cams if a < b]
 
 
-def kitti_items(recipe, name: str) -> list[KittiItem]:
-    """Every pair of one sequence / drive the recipe selects (kinds, cameras, steps, directions, frames)."""
+PAPER_SPLIT = {"train": (0.0, 0.8), "val": (0.8, 0.9), "test": (0.9, 1.0)}  # the paper's 1600 / 200 / 200
+
+
+def paper_split_frames(name: str, frames: Sequence[int], part: str) -> set[int]:
+    """The paper's split (random frames of the same drives, 80 / 10 / 10 %): the frames of ``part``
+    ("train", "val" or "test") of one sequence or drive, from a permutation seeded by its name (so
+    every camera pair and every run draws the same frames)."""
+    import zlib
+
+    order = sorted(frames)
+    perm = np.random.default_rng(zlib.crc32(name.encode())).permutation(len(order))
+    lo, hi = PAPER_SPLIT[part]
+    return {order[i] for i in perm[int(round(lo * len(order))) : int(round(hi * len(order)))]}
+
+
+def kitti_items(recipe, name: str, part: str | None = None) -> list[KittiItem]:
+    """Every pair of one sequence / drive the recipe selects (kinds, cameras, steps, directions, frames);
+    ``part``: only pairs whose first frame is in that part of the paper's split (:func:`paper_split_frames`,
+    drawn from the frames of camera 0, or the first camera present)."""
     d = recipe.data
     roots = [str(resolve_root(r)) for r in [d.root, *d.roots] if r]
     key, ds = _open_named(roots, name)
     items: list[KittiItem] = []
+    if part is not None:
+        in_part = paper_split_frames(name, set().union(*(frames_of(ds, c) for c in ds.projections)), part)
     for kind in recipe.kinds:
-        if kind == "temporal" and key == "drive":
-            continue  # raw drives have no poses here
         for cams in _camera_pairs(recipe, kind, sorted(ds.projections)):
             frames = frames_of(ds, cams[0]) & frames_of(ds, cams[1])
+            if kind == "temporal":
+                frames &= ds.pose_frames  # both frames need a pose (raw drives: an oxts packet)
+            firsts = frames & in_part if part is not None else frames
             lo, hi = (d.frames[0], d.frames[1]) if d.frames else (0, 1 << 30)
             steps = d.steps if kind == "temporal" else [0]
-            for f in sorted(frames):
+            for f in sorted(firsts):
                 if not lo <= f < hi or (f - lo) % d.frame_stride:
                     continue
                 for step in steps:
@@ -490,6 +538,9 @@ def filter_by_gt_agreement(items: list[KittiItem], max_sed_px: float, cache_path
             cache = {}
     opened: dict = {}
     kept = []
+    from fviz.estimators.features import FeatureCache, FeatureConfig
+
+    features = FeatureCache(FeatureConfig(), threads=1)  # items are in frame order: neighbours share frames
     try:
         for n, item in enumerate(items):
             fwd = KittiItem(**{**item.__dict__, "reverse": False})
@@ -499,7 +550,7 @@ def filter_by_gt_agreement(items: list[KittiItem], max_sed_px: float, cache_path
                     from fviz.data.kitti import open_dataset
 
                     opened[k] = open_dataset(fwd.root, **{fwd.key: fwd.name})
-                cache[fwd.label] = gt_agreement_px(load_kitti_pair(opened[k], fwd))
+                cache[fwd.label] = gt_agreement_px(load_kitti_pair(opened[k], fwd), features)
             if cache[fwd.label] <= max_sed_px:  # NaN (too few matches to tell) is dropped too
                 kept.append(item)
             if on_item is not None:
@@ -537,7 +588,12 @@ def make_datasets(recipe, render_device: str | torch.device = "cpu") -> tuple[to
         raise FvizError(f"data.val_sequences {sorted(held_out)} are also training sequences: a held-out sequence must not be trained on")
     train_items: list[KittiItem] = []
     val_items: list[KittiItem] = []
-    for name in names:
+    if d.split == "paper" and d.val_sequences:
+        raise FvizError("data.split = 'paper' draws validation frames from the training drives: leave data.val_sequences empty")
+    for name in names if d.split == "paper" else ():
+        train_items += kitti_items(recipe, name, "train")
+        val_items += kitti_items(recipe, name, "val")
+    for name in names if d.split != "paper" else ():
         items = kitti_items(recipe, name)
         n_val = 0 if d.val_sequences else int(round(len(items) * d.val_fraction))
         if d.val_fraction > 0 and not d.val_sequences and len(items) > 1:

@@ -484,6 +484,9 @@ def train(
     if t.max_steps:
         total = min(total, t.max_steps)
 
+    if not resume and t.t_norm_weight > 0:
+        unit_translation(model, train_ds, t.batch_size, device)
+
     net = model
     if world > 1:
         net = torch.nn.parallel.DistributedDataParallel(model, device_ids=[device.index] if device.type == "cuda" else None)
@@ -583,6 +586,8 @@ def train(
                 with torch.autocast(device.type, dtype=amp_dtype or torch.float32, enabled=amp_dtype is not None):
                     F_pred = net(img_a, img_b)
                 loss = f_loss(F_pred, F_t, norm, t.l1_weight, t.l2_weight, t.loss_frame, recipe.input_hw)
+                if t.t_norm_weight > 0 and getattr(model.head, "t_raw_norm", None) is not None:
+                    loss = loss + t.t_norm_weight * model.head.t_raw_norm.log().square().mean()
                 pending.append(loss.detach())  # checked at the next flush (no host sync per step)
                 for group in opt.param_groups:
                     group["lr"] = lr_at(step, total, t)
@@ -652,6 +657,21 @@ def train(
         out_dir=out_dir, checkpoint=ckpt_path, weights=weights, recording=recording, step=step, epoch=epoch,
         metrics=metrics, history=history, losses=losses, seconds=time.perf_counter() - t_start,
     )
+
+
+def unit_translation(model, train_ds, batch_size: int, device: torch.device) -> float | None:
+    """REC heads: rescale the translation outputs so that their median raw length on the first training
+    batch is 1 (the same F, a translation that turns as fast as the angles; see fviz/models/heads.py).
+    Returns the factor (None for other heads)."""
+    if not hasattr(model.head, "unit_translation_"):
+        return None
+    img_a, img_b, _ = train_ds[list(range(min(len(train_ds), max(batch_size, 16))))]
+    was_training = model.training
+    model.eval()
+    with torch.no_grad():
+        features = model.features(img_a.to(device), img_b.to(device))
+    model.train(was_training)
+    return model.head.unit_translation_(features)
 
 
 def output_dir(recipe: Recipe) -> Path:

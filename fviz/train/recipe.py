@@ -9,7 +9,7 @@ A recipe has three tables, every key optional (defaults below):
     [data]    source, root, sequences, drives, val_sequences, kind, steps, cams, frames, frame_stride,
               val_fraction, train_size, val_size, val_points, cache, synthetic = { SceneConfig fields }
     [train]   batch_size, lr, schedule, warmup_steps, weight_decay, epochs, max_steps, l1_weight, l2_weight, loss_frame,
-              grad_clip, seed, device, amp, num_workers, threads, out_dir, init, checkpoint_every, val_every,
+              grad_clip, t_norm_weight, seed, device, amp, num_workers, threads, out_dir, init, checkpoint_every, val_every,
               log_every, export_dtype
 
     [variants."siamese-rec-pos-fbn"]   # optional per-variant overrides, applied when
@@ -97,6 +97,9 @@ class DataSection:
     kinds: list[str] = field(default_factory=list, metadata=_choices("temporal", "stereo"))  # overrides kind when given
     cameras: list[int] = field(default_factory=list, metadata={"min": 0, "max": 3})  # cameras to pair (empty: cams)
     both_directions: bool = False  # temporal t -> t+k and t+k -> t; stereo a -> b and b -> a
+    # "paper": the paper's split, random frames of the same sequences / drives, 80 % train, 10 % validation
+    # (10 % test, never loaded here: fviz.train.data.paper_split_frames); "": val_sequences or val_fraction
+    split: str = field(default="", metadata=_choices("", "paper"))
     max_gt_sed_px: float = field(default=0.0, metadata={"min": 0.0})  # > 0: drop pairs whose GT disagrees with the images
     augment_swap: float = field(default=0.0, metadata={"min": 0.0, "max": 1.0})  # probability: a <-> b, F -> F^T
     augment_flip: float = field(default=0.0, metadata={"min": 0.0, "max": 1.0})  # probability: both mirrored
@@ -119,6 +122,10 @@ class TrainSection:
     l2_weight: float = field(default=1.0, metadata={"min": 0.0})
     loss_frame: str = field(default="conditioned", metadata=_choices("conditioned", "pixel"))
     grad_clip: float = field(default=1.0, metadata={"min": 0.0})  # max gradient norm (0: off)
+    # REC heads: keep the raw translation near unit length (fviz/models/heads.py): the t outputs of the
+    # starting weights are rescaled to median length 1 before the first step, and the loss adds
+    # t_norm_weight * mean(log ||raw t||)^2.  0 turns both off (the parametrisation before 2026-12).
+    t_norm_weight: float = field(default=0.01, metadata={"min": 0.0})
     seed: int = 0
     device: str = "auto"  # auto | cpu | cuda | cuda:N
     amp: str = field(default="auto", metadata=_choices("auto", "bf16", "fp16", "off"))
