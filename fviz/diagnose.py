@@ -47,6 +47,8 @@ def rotation_fraction(pair, x_a: np.ndarray, x_b: np.ndarray) -> float:
 def focals(pair, F: np.ndarray) -> list[float]:
     """[f_a, f_b] px of F by Bougnoux's formula (PoseLib) at K's principal points; NaN where imaginary,
     and where PoseLib is not installed."""
+    if not pair.has_K:
+        return [float("nan")] * 2
     try:
         from fviz.estimators.external import bougnoux_focals
 
@@ -64,7 +66,7 @@ def focal_observable(pair, x_a: np.ndarray, x_b: np.ndarray) -> bool:
 
     from fviz.geometry import homogeneous, lines_in_b
 
-    if len(x_a) < MIN_FIT:
+    if len(x_a) < MIN_FIT or not (pair.has_gt and pair.has_K):
         return False
     x_a, x_b = x_a[:FOCAL_PROBE_POINTS], x_b[:FOCAL_PROBE_POINTS]  # the best matches: enough for an 8-point F
     f_true = np.array([pair.K_a[0, 0], pair.K_b[0, 0]])
@@ -81,7 +83,9 @@ def focal_observable(pair, x_a: np.ndarray, x_b: np.ndarray) -> bool:
 
 
 def two_view_label(pair, m) -> str:
-    """COLMAP's two-view configuration of the matches (``n/a`` where pycolmap is not installed)."""
+    """COLMAP's two-view configuration of the matches (``n/a`` where pycolmap is not installed, or the cameras unknown)."""
+    if not pair.has_K:
+        return "n/a"
     try:
         from fviz.estimators.external import two_view_configuration
     except ImportError:
@@ -92,11 +96,12 @@ def two_view_label(pair, m) -> str:
 def _estimator_evidence(pair, r, m, gt_sed: np.ndarray, eval_threshold: float) -> dict[str, float]:
     inl = np.zeros(len(m), bool) if r.inliers is None else r.inliers
     n = int(inl.sum())
+    known = n and gt_sed is not None
     return {
         "n_inliers": n,
         "homography_fraction": homography_fraction(m.x_a[inl], m.x_b[inl]),
-        "gt_agree": float(np.mean(gt_sed[inl] < eval_threshold)) if n else float("nan"),
-        "gt_sed_median_inliers": float(np.median(gt_sed[inl])) if n else float("nan"),
+        "gt_agree": float(np.mean(gt_sed[inl] < eval_threshold)) if known else float("nan"),
+        "gt_sed_median_inliers": float(np.median(gt_sed[inl])) if known else float("nan"),
         "focals": focals(pair, r.F),
     }
 
@@ -111,18 +116,19 @@ def diagnose(pair, result) -> dict[str, Any]:
     from fviz.geometry import symmetric_epipolar_distance
 
     m = result.matches
-    gt_sed = symmetric_epipolar_distance(pair.F_gt, m.x_a, m.x_b)
-    angle = np.degrees(np.arccos(np.clip((np.trace(pair.R) - 1) / 2, -1.0, 1.0)))
+    nan = float("nan")
+    gt_sed = symmetric_epipolar_distance(pair.F_gt, m.x_a, m.x_b) if pair.has_gt else None  # the pair's GT, if any
+    angle = np.degrees(np.arccos(np.clip((np.trace(pair.R) - 1) / 2, -1.0, 1.0))) if pair.R is not None else nan
     flow = np.linalg.norm(m.x_b - m.x_a, axis=1)
     xa, xb = m.x_a[result.eval_mask], m.x_b[result.eval_mask]
-    ahead_sed = symmetric_epipolar_distance(ahead(pair, xa, xb), xa, xb)
+    ahead_sed = symmetric_epipolar_distance(ahead(pair, xa, xb), xa, xb) if pair.has_K else np.zeros(0)
     return {
         "n_matches": len(m),
-        "baseline_m": float(np.linalg.norm(pair.t)),
+        "baseline_m": float(np.linalg.norm(pair.t)) if pair.t is not None else nan,
         "rotation_deg": float(angle),
         "median_flow_px": float(np.median(flow)) if len(m) else float("nan"),
         "static_fraction": float(np.mean(flow < STATIC_PX)) if len(m) else float("nan"),
-        "rotation_fraction": rotation_fraction(pair, m.x_a, m.x_b),
+        "rotation_fraction": rotation_fraction(pair, m.x_a, m.x_b) if pair.has_pose else nan,
         "ahead_sed_median": float(np.median(ahead_sed)) if len(ahead_sed) else float("nan"),
         "two_view": two_view_label(pair, m),
         "focal_observable": focal_observable(pair, xa, xb),

@@ -22,6 +22,14 @@ Evaluation correspondences are the matched keypoints whose symmetric epipolar di
   no summary, table or ranking.
 
 The ground truth itself gets the same row (``gt``): the paper's "Ground-truth" row, with the true pose.
+
+Ground truth is optional (:attr:`Pair.has_gt`). Without it there is no ``gt`` row and every GT-based metric
+(f_dist, nsgd, gt_inlier_ratio, epipole_err_deg, the pose errors) is absent, not NaN; the residuals are
+taken over all matches, and the estimators are compared with each other: ``agreement_nsgd`` is the median
+NSGD of an estimator's F to the other estimators' (``PairResult.agreement`` holds the whole matrix).
+With an F but no pose (``--F-gt``, ``--gt-matches``) the pose errors are absent; without cameras (K) the
+pose is not recovered and epipole_err_deg is absent. With ground-truth correspondences (``pair.gt_points``)
+the residuals are computed on them (``eval_points`` = "gt-matches") rather than on the matches near F_gt.
 """
 
 from __future__ import annotations
@@ -35,7 +43,7 @@ import numpy as np
 from fviz.data.pair import Pair
 from fviz.errors import FvizError
 from fviz.estimators.base import Estimate, EstimateFn, run_estimator
-from fviz.estimators.features import FeatureCache, FeatureConfig, Matches, match
+from fviz.estimators.features import FeatureCache, FeatureConfig, Matches, match, user_matches
 from fviz.geometry import (
     nearest_rotation,
     NORMS,
@@ -93,7 +101,7 @@ class PairResult:
     pair: dict[str, Any]
     norm: str
     eval_threshold_px: float
-    F_gt: np.ndarray
+    F_gt: np.ndarray | None
     n_keypoints: tuple[int, int]
     n_matches: int
     n_eval: int
@@ -103,6 +111,12 @@ class PairResult:
     eval_mask: np.ndarray | None = None
     notes: list[str] = field(default_factory=list)
     match_precision: dict[str, float] = field(default_factory=dict)
+    eval_points: str = "near-gt"  # what the residuals are computed on: near-gt, gt-matches or all-matches
+    agreement: dict[str, Any] | None = None  # without ground truth: {"metric": "nsgd", "names", "matrix"}
+
+    @property
+    def has_gt(self) -> bool:
+        return self.F_gt is not None
 
     @property
     def errors(self) -> list[str]:
@@ -117,7 +131,10 @@ class PairResult:
             "norm": self.norm,
             "metric_note": "epi_abs/epi_sqr are means per pair over evaluation correspondences, on F normalized by 'norm'",
             "eval_threshold_px": self.eval_threshold_px,
-            "F_gt": self.F_gt.tolist(),
+            "F_gt": None if self.F_gt is None else self.F_gt.tolist(),
+            "ground_truth": self.pair.get("ground_truth", "pose"),
+            "eval_points": self.eval_points,
+            **({} if self.agreement is None else {"agreement": self.agreement}),
             "n_keypoints": list(self.n_keypoints),
             "n_matches": self.n_matches,
             "n_eval": self.n_eval,
@@ -175,45 +192,82 @@ def true_pose(pair: Pair) -> tuple[np.ndarray, np.ndarray]:
 
 
 def score(
-    name: str, F: np.ndarray, pair: Pair, m: Matches, eval_mask: np.ndarray, norm: str,
+    name: str, F: np.ndarray, pair: Pair, m: Matches, evaluation: tuple[np.ndarray, np.ndarray], norm: str,
     inliers: np.ndarray | None, threshold_px: float,
 ) -> tuple[dict[str, float], np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray] | None]:
     """Metrics of one F on one pair (see module doc), per-match SED residuals (px), the inlier mask and
     the recovered pose (None when unknown; the true one for the ground truth).
 
+    evaluation: (x_a, x_b) (E, 2) the points the residuals are computed on (:func:`evaluation_points`).
     Without an estimator's own mask, inliers are the matches with Sampson distance < ``threshold_px``.
+    Metrics that need what the pair lacks (ground truth, pose, cameras) are absent.
     """
     sed = symmetric_epipolar_distance(F, m.x_a, m.x_b)
-    xa, xb = m.x_a[eval_mask], m.x_b[eval_mask]
-    samp = sampson_distance(F, xa, xb)
+    xa, xb = evaluation
+    sed_eval, samp = symmetric_epipolar_distance(F, xa, xb), sampson_distance(F, xa, xb)
     if inliers is None:
         inliers = sampson_distance(F, m.x_a, m.x_b) < threshold_px
-    ea, eb = epipoles(F)
-    ga, gb = epipoles(pair.F_gt)
     nan = float("nan")
     metrics: dict[str, float] = {}
     metrics["epi_abs"], metrics["epi_sqr"] = epi_metrics(F, xa, xb, norm)
     for n in NORMS:
         metrics[f"epi_abs_{n}"], metrics[f"epi_sqr_{n}"] = epi_metrics(F, xa, xb, n)
     metrics.update(
-        sed_mean=float(np.mean(sed[eval_mask])) if eval_mask.any() else nan,
-        sed_median=float(np.median(sed[eval_mask])) if eval_mask.any() else nan,
+        sed_mean=float(np.mean(sed_eval)) if len(sed_eval) else nan,
+        sed_median=float(np.median(sed_eval)) if len(sed_eval) else nan,
         sampson_mean=float(samp.mean()) if len(samp) else nan,
         sampson_median=float(np.median(samp)) if len(samp) else nan,
         n_inliers=float(inliers.sum()),
         inlier_ratio=float(inliers.mean()) if len(inliers) else nan,
-        f_dist=float(f_distance(F, pair.F_gt)),
-        epipole_err_deg=max(_ray_angle_deg(pair.K_a, ea, ga), _ray_angle_deg(pair.K_b, eb, gb)),
     )
+    if pair.has_gt:
+        metrics["f_dist"] = float(f_distance(F, pair.F_gt))
+    if pair.has_gt and pair.has_K:
+        (ea, eb), (ga, gb) = epipoles(F), epipoles(pair.F_gt)
+        metrics["epipole_err_deg"] = max(_ray_angle_deg(pair.K_a, ea, ga), _ray_angle_deg(pair.K_b, eb, gb))
     if name == GT_NAME:
-        pose = true_pose(pair)
-        metrics.update(rot_err_deg=0.0, trans_err_deg=0.0, pose_err_deg=0.0)
+        pose = true_pose(pair) if pair.has_pose else None
+        if pose:
+            metrics.update(rot_err_deg=0.0, trans_err_deg=0.0, pose_err_deg=0.0)
     else:
-        pose = recover_pose(F, pair.K_a, pair.K_b, xa, xb)
-        metrics.update(pose_metrics(*(pose or (None, None)), pair))
-    metrics["nsgd"] = 0.0 if name == GT_NAME else nsgd(F, pair.F_gt, pair.size_a, pair.size_b)
-    metrics["gt_inlier_ratio"] = gt_inlier_ratio(pair.F_gt, m.x_a, m.x_b, inliers, pair.size_a, pair.size_b)
+        pose = recover_pose(F, pair.K_a, pair.K_b, xa, xb) if pair.has_K else None
+        if pair.has_pose:
+            metrics.update(pose_metrics(*(pose or (None, None)), pair))
+    if pair.has_gt:
+        metrics["nsgd"] = 0.0 if name == GT_NAME else nsgd(F, pair.F_gt, pair.size_a, pair.size_b)
+        metrics["gt_inlier_ratio"] = gt_inlier_ratio(pair.F_gt, m.x_a, m.x_b, inliers, pair.size_a, pair.size_b)
     return metrics, sed, inliers, pose
+
+
+def evaluation_points(pair: Pair, m: Matches, eval_threshold_px: float) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray], str]:
+    """(eval_mask (M,) over the matches, the points the residuals are computed on (x_a, x_b), what they are).
+
+    With ground-truth correspondences: those (the mask marks the matches near F_gt, for lines and the
+    probe); with an F_gt: the matches within ``eval_threshold_px`` of it (the paper's protocol); without
+    ground truth: every match.
+    """
+    if not pair.has_gt:
+        return np.ones(len(m), bool), (m.x_a, m.x_b), "all-matches"
+    mask = symmetric_epipolar_distance(pair.F_gt, m.x_a, m.x_b) < eval_threshold_px
+    if pair.gt_points is not None:
+        return mask, pair.gt_points, "gt-matches"
+    return mask, (m.x_a[mask], m.x_b[mask]), "near-gt"
+
+
+def agreement(results: list[EstimatorResult], size_a, size_b) -> dict[str, Any] | None:
+    """Without ground truth: NSGD between every two estimators' F (symmetric up to sampling), and each
+    estimator's ``agreement_nsgd`` metric (the median to the others). None for fewer than two Fs."""
+    ok = [r for r in results if r.F is not None]
+    if len(ok) < 2:
+        return None
+    n = len(ok)
+    matrix = np.zeros((n, n))
+    for i in range(n):
+        for j in range(i + 1, n):
+            matrix[i, j] = matrix[j, i] = 0.5 * (nsgd(ok[i].F, ok[j].F, size_a, size_b) + nsgd(ok[j].F, ok[i].F, size_a, size_b))
+    for i, r in enumerate(ok):
+        r.metrics["agreement_nsgd"] = float(np.median(np.delete(matrix[i], i)))
+    return {"metric": "nsgd", "names": [r.name for r in ok], "matrix": matrix.tolist()}
 
 
 def evaluate_pair(
@@ -232,30 +286,40 @@ def evaluate_pair(
         raise FvizError(f"--norm {norm!r}: choose one of {', '.join(NORMS)}")
     cache = cache or FeatureCache(features)
     t0 = time.perf_counter()
-    fa, fb = cache.get_pair(pair.id.key_a, pair.image_a, pair.id.key_b, pair.image_b)
-    t1 = time.perf_counter()
-    m = match(fa, fb, features)
+    if pair.matches is not None:  # the user's matches (--matches): no detection
+        m = user_matches(pair.matches)
+        n_keypoints = pair.matches.n_keypoints or (len(m), len(m))
+        t1 = t0
+    else:
+        fa, fb = cache.get_pair(pair.id.key_a, pair.image_a, pair.id.key_b, pair.image_b)
+        t1 = time.perf_counter()
+        m = match(fa, fb, features)
+        n_keypoints = (len(fa.keypoints), len(fb.keypoints))
     t2 = time.perf_counter()
-    gt_sed = symmetric_epipolar_distance(pair.F_gt, m.x_a, m.x_b)
-    eval_mask = gt_sed < eval_threshold_px
+    eval_mask, evaluation, eval_points = evaluation_points(pair, m, eval_threshold_px)
     notes = list(pair.notes)
-    if norm == "etr" and abs(normalize(pair.F_gt, "fbn")[2, 2]) < 1e-9:
+    if not pair.has_gt:
+        notes.append("no ground truth: the estimators are compared with each other (residuals over all matches, "
+                     "agreement_nsgd); no GT-based metric is computed")
+    if pair.has_gt and norm == "etr" and abs(normalize(pair.F_gt, "fbn")[2, 2]) < 1e-9:
         notes.append("ETR is undefined for this pair (F33 = 0: rectified stereo); epi_* under ETR are NaN")
     results = []
-    for name, fn in [(GT_NAME, lambda p, a, b: p.F_gt), *estimators]:
+    gt_row = [(GT_NAME, lambda p, a, b: p.F_gt)] if pair.has_gt else []
+    for name, fn in [*gt_row, *estimators]:
         est: Estimate = run_estimator(name, fn, pair, m.x_a, m.x_b, timeout)
         if not est.ok:
             results.append(EstimatorResult(name, None, {}, est.seconds, est.error))
             continue
         inliers = est.inliers if name != GT_NAME else None
-        metrics, sed, inl, pose = score(name, est.F, pair, m, eval_mask, norm, inliers, inlier_threshold_px)
+        metrics, sed, inl, pose = score(name, est.F, pair, m, evaluation, norm, inliers, inlier_threshold_px)
         R, t = pose or (None, None)
         results.append(EstimatorResult(name, est.F, metrics, est.seconds, None, inl, sed, R, t))
     return PairResult(
         pair=pair.to_dict(), norm=norm, eval_threshold_px=eval_threshold_px, F_gt=pair.F_gt,
-        n_keypoints=(len(fa.keypoints), len(fb.keypoints)), n_matches=len(m), n_eval=int(eval_mask.sum()),
+        n_keypoints=n_keypoints, n_matches=len(m), n_eval=len(evaluation[0]),
         timings={"features_s": t1 - t0, "matching_s": t2 - t1}, estimators=results, matches=m,
-        eval_mask=eval_mask, notes=notes,
-        match_precision={} if pair.F_gt is None else match_precision(pair.K_a, pair.K_b, pair.R, pair.t, pair.F_gt,
+        eval_mask=eval_mask, notes=notes, eval_points=eval_points,
+        agreement=None if pair.has_gt else agreement(results, pair.size_a, pair.size_b),
+        match_precision={} if not pair.has_pose else match_precision(pair.K_a, pair.K_b, pair.R, pair.t, pair.F_gt,
                                                                      m.x_a, m.x_b),
     )

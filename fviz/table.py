@@ -99,18 +99,20 @@ def table_from_rows(rows, variants: dict[str, dict], source: str = "row") -> tup
 
 def run_figures(run_dir: Path) -> dict[str, dict]:
     """The standard figures of a run, from its metrics.csv."""
-    from fviz.run.reports import FIGURE_KEYS, standard_figures
+    from fviz.run.reports import FIGURE_KEYS, figures_known, standard_figures
 
     from fviz.run.config import csv_number
 
     per_pair: dict[str, list[float]] = {}
+    ground_truth: set[str] = set()
     path = run_dir / "metrics.csv"
     with open(path, newline="") as f:
         for line, row in enumerate(_rows(f, path), 2):
+            ground_truth.update([row["ground_truth"]] if row.get("ground_truth") else [])
             failed = bool(row.get("error") or row.get("pair_error"))
             per_pair.setdefault(row["estimator"], []).extend(
                 math.nan if failed else csv_number(row, k, f"{path}:{line}") for k in FIGURE_KEYS)
-    return standard_figures(per_pair)
+    return standard_figures(per_pair, known=figures_known(ground_truth))
 
 
 def _rows(f, path: Path):

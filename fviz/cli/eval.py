@@ -27,7 +27,7 @@ from fviz.errors import FvizError
 
 Pairs = Annotated[Optional[list[str]], typer.Option("--pair", help="stereo and/or temporal (repeatable or comma list; default stereo).")]
 Steps = Annotated[Optional[list[str]], typer.Option("--step", help="Frame steps of temporal pairs (repeatable or comma list; default 1).")]
-Frames = Annotated[Optional[str], typer.Option("--frames", help="Frame range START:END of the pairs' cameras, END exclusive (default: all).")]
+Frames = Annotated[Optional[str], typer.Option("--frames", help="Frame range START:END of the pairs' cameras (with --pairs / --colmap: of the listed pairs, from 0), END exclusive (default: all).")]
 Seeds = Annotated[Optional[str], typer.Option("--seeds", help="With --synthetic: scene seeds A:B (A .. B-1), one pair per seed.")]
 OutDir = Annotated[Path, typer.Option("--out-dir", help="Run folder: results.jsonl, metrics.csv/.parquet, summary.md, eval.rrd.")]
 Workers = Annotated[Optional[int], typer.Option("--workers", help="Worker processes (default: CPU count; at most the CPU count, and one per 4 pairs to evaluate).",
@@ -48,6 +48,19 @@ def _run_options(
     frames: Frames = None,
     synthetic: o.Synthetic = False,
     seeds: Seeds = None,
+    pairs: o.PairsFile = None,
+    images: o.ImagesDir = None,
+    colmap: o.Colmap = None,
+    min_shared: o.MinShared = 100,
+    matches: o.MatchesFile = None,
+    gt_matches: o.GtMatches = None,
+    image_a: o.ImageA = None,
+    image_b: o.ImageB = None,
+    K: o.KBoth = None,
+    K_a: o.KA = None,
+    K_b: o.KB = None,
+    T_ab: o.TAB = None,
+    F_gt: o.FGT = None,
     estimator: o.Estimators = None,
     features: o.Features = "sift",
     max_keypoints: o.MaxKeypoints = 2000,
@@ -70,7 +83,8 @@ def _run_options(
 
 
 RUN_PARAMS = list(inspect.signature(_run_options, eval_str=True).parameters.values())
-SELECTION_FLAGS = ("kitti_root", "sequence", "drive", "pair_kind", "step", "cams", "frames", "synthetic", "seeds")
+SELECTION_FLAGS = ("kitti_root", "sequence", "drive", "pair_kind", "step", "cams", "frames", "synthetic", "seeds",
+                   "pairs", "images", "colmap", "matches", "gt_matches", "image_a", "image_b", "K", "K_a", "K_b", "T_ab", "F_gt")
 
 
 @dataclass
@@ -116,16 +130,29 @@ class RunArgs:
     def selection(self):
         from fviz.run import Selection
 
+        absolute = lambda p: None if p is None else os.path.abspath(Path(p).expanduser())  # noqa: E731
+        user = any(v is not None for v in (self.pairs, self.colmap, self.image_a, self.image_b))
         root = None
-        if not self.synthetic:
-            root = os.path.abspath(Path(o.kitti_root(self.kitti_root)).expanduser())
+        if not self.synthetic and not user:
+            root = absolute(o.kitti_root(self.kitti_root))
+        elif self.kitti_root is not None:
+            root = absolute(self.kitti_root)  # refused by Selection, with the flag named
         return Selection(
+            pairs=absolute(self.pairs), images=absolute(self.images), colmap=absolute(self.colmap),
+            min_shared=self.min_shared, matches=absolute(self.matches), gt_matches=absolute(self.gt_matches),
+            image_a=absolute(self.image_a), image_b=absolute(self.image_b), K=self.K, K_a=self.K_a, K_b=self.K_b,
+            T_ab=_file_or_numbers(self.T_ab), F_gt=_file_or_numbers(self.F_gt),
             kitti_root=root, sequence=self.sequence, drive=self.drive,
             kinds=tuple(split_list(self.pair_kind, "--pair")) or ("stereo",),
             steps=tuple(int_list(self.step, "--step")) or (1,),
             cams=o.parse_cams(self.cams), frames=parse_range(self.frames, "--frames", both=False),
             synthetic=self.synthetic, seeds=parse_range(self.seeds, "--seeds", both=True) if self.seeds else None,
         )
+
+
+def _file_or_numbers(text: str | None) -> str | None:
+    """--T-ab / --F-gt: a file's absolute path (the run may be resumed from elsewhere), or the numbers as given."""
+    return os.path.abspath(text) if text is not None and Path(text).is_file() else text
 
 
 def split_list(values: list[str] | None, flag: str) -> list[str]:

@@ -13,8 +13,54 @@ from fviz.cli import options as o
 from fviz.cli.browse import Port, WebBind, WebPort
 
 
-def load_pair(kitti_root, sequence, drive, frame, pair_kind, step, cams, synthetic: bool, seed: int):
-    """The selected pair (KITTI or synthetic)."""
+def load_pair(kitti_root, sequence, drive, frame, pair_kind, step, cams, synthetic: bool, seed: int, user: dict | None = None):
+    """The selected pair: a user's (two images, a pairs file, a COLMAP model: ``user`` holds those flags),
+    KITTI or synthetic; with the user's matches and ground-truth correspondences attached."""
+    user = user or {}
+    p = _user_pair(user, frame)
+    if p is None:
+        p = _kitti_or_synthetic(kitti_root, sequence, drive, frame, pair_kind, step, cams, synthetic, seed)
+    if user.get("matches") or user.get("gt_matches"):
+        from fviz.data.sources import WithCorrespondences, attach
+
+        given = WithCorrespondences(None, user.get("matches"), user.get("gt_matches"), n_pairs=1)
+        p = attach(p, given.matches, given.gt_matches)
+    return p
+
+
+def _user_pair(user: dict, frame: int):
+    """The pair of --image-a/--image-b, or line --index of --pairs, or pair --index of --colmap; else None."""
+    from fviz.errors import FvizError
+
+    images = user.get("image_a") is not None or user.get("image_b") is not None
+    listed = user.get("pairs") is not None or user.get("colmap") is not None
+    names = None
+    if images and listed:  # the pair of a list, by its images' names
+        if user.get("image_a") is None or user.get("image_b") is None or user.get("index") is not None:
+            raise FvizError("--pairs/--colmap: pick a pair by --index N or by both names (--image-a NAME --image-b NAME)")
+        names, images = (str(user["image_a"]), str(user["image_b"])), False
+    gt_flags = [f for f, k in (("--K", "K"), ("--K-a", "K_a"), ("--K-b", "K_b"), ("--T-ab", "T_ab"), ("--F-gt", "F_gt")) if user.get(k)]
+    if gt_flags and (not images or names):
+        raise FvizError(f"{gt_flags[0]}: only with --image-a and --image-b (a pairs file or model has its own ground truth)")
+    if images:
+        if user.get("image_a") is None or user.get("image_b") is None:
+            raise FvizError(f"--image-{'a' if user.get('image_a') is None else 'b'}: missing (give both images)")
+        from fviz.data.images import two_images
+
+        return two_images(str(user["image_a"]), str(user["image_b"]), user.get("K"), user.get("K_a"), user.get("K_b"),
+                          user.get("T_ab"), user.get("F_gt"))
+    if not listed:
+        if user.get("index") is not None:
+            raise FvizError("--index: only with --pairs or --colmap")
+        return None
+    from fviz.data.sources import user_source
+
+    source = user_source(user.get("pairs"), user.get("images"), user.get("colmap"), user.get("min_shared"))
+    index = source.index_of(user.get("index"), names)
+    return source.load(source.pair_id(index))
+
+
+def _kitti_or_synthetic(kitti_root, sequence, drive, frame, pair_kind, step, cams, synthetic: bool, seed: int):
     if synthetic:
         from fviz.data.synthetic import SceneConfig, synthetic_pair
 
@@ -51,7 +97,7 @@ def pair(
     estimator_timeout: o.EstimatorTimeout = 600.0,
     lines: Annotated[int, typer.Option("--lines", help="Epipolar lines drawn per F (a fixed random subset of matches).")] = 30,
     probe: Annotated[int, typer.Option("--probe", help="Steps of the probe timeline: the worst evaluation matches, one per step.")] = 20,
-    probe_by: Annotated[Optional[str], typer.Option("--probe-by", help="Order the probe by this estimator's residual (default: the largest over the estimators).")] = None,
+    probe_by: Annotated[Optional[str], typer.Option("--probe-by", help="Order the probe by this estimator's residual (default: the largest over the estimators), or by 'score': your matches' scores, lowest first.")] = None,
     out: Annotated[Optional[Path], typer.Option("--out", help="Recording to write, *.rrd (default runs/<pair>.rrd).",
                                                 callback=o.check_recording_path)] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print the result as JSON on stdout.")] = False,
@@ -61,6 +107,20 @@ def pair(
     port: Port = 9876,
     web_port: WebPort = 9090,
     synthetic: o.Synthetic = False,
+    image_a: o.ImageA = None,
+    image_b: o.ImageB = None,
+    K: o.KBoth = None,
+    K_a: o.KA = None,
+    K_b: o.KB = None,
+    T_ab: o.TAB = None,
+    F_gt: o.FGT = None,
+    pairs: o.PairsFile = None,
+    images: o.ImagesDir = None,
+    index: Annotated[Optional[int], typer.Option("--index", help="With --pairs / --colmap: the pair to inspect, from 0.")] = None,
+    colmap: o.Colmap = None,
+    min_shared: o.MinShared = 100,
+    matches: o.MatchesFile = None,
+    gt_matches: o.GtMatches = None,
 ) -> None:
     """Run estimators on one pair and record images, keypoints, epipolar lines, epipoles, residuals and metrics."""
     import threading
@@ -85,7 +145,9 @@ def pair(
         target(out)  # a folder or special file as --out: refused before any work
     _check_viewer(spawn, web, bind, port, web_port)
     ests = opts.estimators()
-    p = load_pair(kitti_root, sequence, drive, frame, pair_kind, step, cams, synthetic, seed)
+    user = dict(image_a=image_a, image_b=image_b, K=K, K_a=K_a, K_b=K_b, T_ab=T_ab, F_gt=F_gt, pairs=pairs, images=images,
+                index=index, colmap=colmap, min_shared=min_shared, matches=matches, gt_matches=gt_matches)
+    p = load_pair(kitti_root, sequence, drive, frame, pair_kind, step, cams, synthetic, seed, user)
     result = evaluate_pair(p, ests, opts.feature_config(), norm, eval_threshold, threshold, timeout=estimator_timeout)
     path = write_pair_recording(out or default_out(p.id.name), p, result, lines, probe, probe_by)
     doc = result.to_dict()
@@ -135,7 +197,7 @@ def _print_table(result, path: Path) -> None:
     from rich.table import Table
 
     cols = [c for c in ("sed_median", "sampson_median", "rot_err_deg", "trans_err_deg", "nsgd", "inlier_ratio",
-                        "epipole_err_deg", "epi_abs", "epi_sqr") if any(c in r.metrics for r in result.estimators)]
+                        "epipole_err_deg", "epi_abs", "epi_sqr", "agreement_nsgd") if any(c in r.metrics for r in result.estimators)]
     t = Table(title=f"{result.pair['name']}  ({result.n_matches} matches, {result.n_eval} for evaluation; "
                     f"EPI means under {result.norm.upper()})")
     t.add_column("estimator")
@@ -149,6 +211,9 @@ def _print_table(result, path: Path) -> None:
             t.add_row(r.name, *(f"{r.metrics.get(c, float('nan')):.4g}" for c in cols), f"{r.seconds:.3f}")
     console = Console(width=max(Console().width, 130))
     console.print(t)
+    if not result.has_gt:
+        console.print("no ground truth: the estimators are compared with each other (SED and inliers over all "
+                      "matches; agreement_nsgd = median NSGD to the other estimators)")
     from fviz.record.writer import precision_lines
 
     for line in precision_lines(result.match_precision)[1:]:

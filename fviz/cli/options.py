@@ -125,3 +125,19 @@ def kitti_root(root: Path | None) -> Path:
     if os.environ.get(KITTI_ROOT_ENV):
         return Path(os.environ[KITTI_ROOT_ENV])
     raise FvizError(f"--kitti-root: missing (or set ${KITTI_ROOT_ENV}); use --synthetic for a scene that needs no dataset")
+
+# ------------------------------------------------------------------ a user's data (fviz.data.images, pairsfile, colmap)
+ImageA = Annotated[Optional[Path], typer.Option("--image-a", help="Your image a (any OpenCV-readable file; EXIF orientation applied).")]
+ImageB = Annotated[Optional[Path], typer.Option("--image-b", help="Your image b.")]
+KBoth = Annotated[Optional[str], typer.Option("--K", help="Intrinsics of both images: fx,fy,cx,cy or 9 numbers (OpenCV pixel origin).")]
+KA = Annotated[Optional[str], typer.Option("--K-a", help="Intrinsics of image a: fx,fy,cx,cy or 9 numbers.")]
+KB = Annotated[Optional[str], typer.Option("--K-b", help="Intrinsics of image b.")]
+TAB = Annotated[Optional[str], typer.Option("--T-ab", help="Ground-truth relative pose, 12 or 16 row-major numbers (or a file): x_b = R x_a + t.")]
+FGT = Annotated[Optional[str], typer.Option("--F-gt", help="Ground-truth F (x_b^T F x_a = 0): a file or 9 row-major numbers.")]
+PairsFile = Annotated[Optional[Path], typer.Option("--pairs", help="Pairs file (SuperGlue/LightGlue layout: name0 name1 [rot0 rot1 K0 K1 T_0to1]); with --colmap: the pairs to take.")]
+ImagesDir = Annotated[Optional[Path], typer.Option("--images", help="Folder the names of --pairs / --colmap are relative to.")]
+Colmap = Annotated[Optional[Path], typer.Option("--colmap", help="COLMAP model folder (cameras, images, points3D; .txt or .bin), read with pycolmap.")]
+MinShared = Annotated[int, typer.Option("--min-shared", help="With --colmap: pairs of images sharing at least this many 3D points.",
+                                        callback=checked("--min-shared", lambda n: n >= 1, "must be >= 1"))]
+MatchesFile = Annotated[Optional[Path], typer.Option("--matches", help="Your matches instead of fviz's features: hloc matches.h5 (features.h5 beside it), SuperGlue *_matches.npz (or a folder of them), or x_a y_a x_b y_b [score] text/npz.")]
+GtMatches = Annotated[Optional[Path], typer.Option("--gt-matches", help="Ground-truth correspondences (x_a y_a x_b y_b, or AdelaideRMF x1 y1 1 x2 y2 1 label): F_gt is fitted to them and the metrics computed on them.")]

@@ -19,6 +19,8 @@ def ahead(pair, x_a: np.ndarray, x_b: np.ndarray) -> np.ndarray:
     """F of pure forward motion (R = I, t = z) between the pair's cameras; ignores the matches."""
     from fviz.geometry import fundamental_from_motion
 
+    if pair.K_a is None or pair.K_b is None:
+        raise ValueError("needs the cameras' intrinsics (K), which this pair lacks")
     return fundamental_from_motion(pair.K_a, pair.K_b, np.eye(3), np.array([0.0, 0.0, 1.0]))
 
 

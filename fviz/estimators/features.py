@@ -37,15 +37,28 @@ class Features:
 
 @dataclass
 class Matches:
-    """idx: (M, 2) indices into (features_a, features_b); x_a, x_b: (M, 2) pixels; distance: (M,)."""
+    """idx: (M, 2) indices into (features_a, features_b); x_a, x_b: (M, 2) pixels; distance: (M,).
+    scores: (M,) the matcher's own confidence of a user's matches (``--matches``), else None."""
 
     idx: np.ndarray
     x_a: np.ndarray
     x_b: np.ndarray
     distance: np.ndarray
+    scores: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.idx)
+
+
+def user_matches(c) -> Matches:
+    """A user's matches (:class:`fviz.data.correspondences.Correspondences`) as Matches, best first when
+    they have scores (the 7-point solver takes the first 7), in file order otherwise. ``distance`` is
+    1 - score (0 without scores); ``idx`` the rows of the file."""
+    n = len(c.x_a)
+    order = np.arange(n) if c.scores is None else np.argsort(-np.asarray(c.scores, float), kind="stable")
+    scores = None if c.scores is None else np.asarray(c.scores, float)[order]
+    distance = np.zeros(n) if scores is None else 1.0 - scores
+    return Matches(np.stack([order, order], 1), np.asarray(c.x_a, float)[order], np.asarray(c.x_b, float)[order], distance, scores)
 
 
 def _detector(cfg: FeatureConfig):

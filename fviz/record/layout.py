@@ -158,6 +158,7 @@ COMPARED_METRICS = (
     ("rot_err_deg", "rotation error (deg)"),
     ("trans_err_deg", "translation error (deg)"),
     ("nsgd", "NSGD (FM-Bench)"),
+    ("agreement_nsgd", "NSGD to the other estimators (no ground truth)"),
 )
 BAR_WIDTH, BAR_PITCH, BAR_HEAD, BAR_LABEL_X = 360.0, 24.0, 30.0, 450.0
 CHART_BACKGROUND = (32, 32, 36)  # charts and plots: dark, so that the ground truth's white shows in any theme
@@ -227,6 +228,14 @@ def error(name: str) -> str:
     return f"errors/{name}"
 
 
+KEYPOINT_RADIUS_PX = 2.0  # on a KITTI frame (1241 px wide); wider images scale it, so that it stays visible
+
+
+def keypoint_radius(size_a: tuple[int, int]) -> float:
+    """Radius of the keypoints, in image pixels: 2 px on KITTI, proportionally more on wider photos."""
+    return KEYPOINT_RADIUS_PX * max(1.0, size_a[0] / 1241.0)
+
+
 def offset_b(size_a: tuple[int, int]) -> np.ndarray:
     """Where image b's origin sits in the shared 2D space: below image a."""
     return np.array([0.0, size_a[1] + GAP_PX])
@@ -248,13 +257,16 @@ def _images_view(sizes: tuple[tuple[int, int], tuple[int, int]], name: str, cont
                              overrides=overrides)
 
 
-def overview_tab(names: Sequence[str], sizes, single_pair: bool):
-    """Both images with the ground truth's residuals and lines and every F's epipole; beside them the
-    comparison (bars, one pair) and the summary."""
+def overview_tab(names: Sequence[str], sizes, single_pair: bool, gt: bool = True):
+    """Both images with the ground truth's residuals and lines (without ground truth: the last estimator's)
+    and every F's epipole; beside them the comparison (bars, one pair) and the summary."""
     import rerun.blueprint as rrb
 
-    contents = [f"+ {matches(GT)}"] + [f"+ {v}/est/{GT}/**" for v in VIEWS] + [f"+ {epipoles(v)}" for v in VIEWS]
-    images = _images_view(sizes, "ground truth: residuals (keypoints) and lines (white); every F's epipole", contents)
+    ref = GT if gt or not names else names[-1]  # without ground truth: the last estimator's (default: magsac)
+    contents = [f"+ {matches(ref)}"] + [f"+ {v}/est/{ref}/**" for v in VIEWS] + [f"+ {epipoles(v)}" for v in VIEWS]
+    title = ("ground truth: residuals (keypoints) and lines (white)" if ref == GT
+             else f"no ground truth: {ref}'s residuals (keypoints) and lines")
+    images = _images_view(sizes, f"{title}; every F's epipole", contents)
     chart = rrb.VisualBounds2D(x_range=[-BAR_PITCH, BAR_LABEL_X + 90.0],
                                y_range=[-BAR_HEAD, compare_height(len(names) + 1)])
     side = [rrb.Spatial2DView(origin=COMPARE, name="comparison (one bar per F, in its colour)", visual_bounds=chart,
@@ -308,7 +320,7 @@ def blueprint(names: Sequence[str], sizes: tuple[tuple[int, int], tuple[int, int
     classes = classes or {}
     tabs = []
     if sizes is not None:
-        tabs.append(overview_tab(ests, sizes, single_pair))
+        tabs.append(overview_tab(ests, sizes, single_pair, gt=GT in names))
         tabs += [estimator_tab(n, sizes, classes.get(n)) for n in ests]
         if single_pair:
             tabs.append(probe_tab(sizes))

@@ -197,7 +197,30 @@ def _fmt(v: float | None, digits: int = 3) -> str:
 
 
 SUMMARY_COLUMNS = (("sed_median", "SED px"), ("rot_err_deg", "rot °"), ("trans_err_deg", "trans °"),
-                   ("nsgd", "NSGD"), ("inlier_ratio", "inliers"))
+                   ("nsgd", "NSGD"), ("inlier_ratio", "inliers"), ("agreement_nsgd", "NSGD to others"))
+
+_GROUND_TRUTH = {"pose": "the relative pose", "F": "a given F", "correspondences": "F fitted to the ground-truth correspondences"}
+
+
+def _pair_sentence(result: PairResult) -> str:
+    """What the pair is and what its metrics are computed on (KITTI frames and cameras, or a user's images)."""
+    p = result.pair
+    if "image_a" not in p:
+        return (f"{p['kind']} pair, frame {p['frame_a']} cam {p['cam_a']} → frame {p['frame_b']} cam {p['cam_b']}; "
+                f"ground truth good to ~{p['gt_accuracy_px']} px. {result.n_matches} matches, {result.n_eval} within "
+                f"{result.eval_threshold_px:g} px of the GT lines (the evaluation matches).")
+    head = f"`{p['image_a']}` → `{p['image_b']}` ({p['source']}); "
+    gt = p.get("ground_truth", "none")
+    if gt == "none":
+        return head + (f"**no ground truth**: the estimators are compared with each other. {result.n_matches} matches; "
+                       "SED and inliers are over all of them, *NSGD to others* is the median NSGD of an F to the "
+                       "other estimators' (table below). No GT-based metric is computed.")
+    if result.eval_points == "gt-matches":
+        where = f"{result.n_eval} ground-truth correspondences (the evaluation matches)"
+    else:
+        where = f"{result.n_eval} within {result.eval_threshold_px:g} px of the GT lines (the evaluation matches)"
+    accuracy = "" if p.get("gt_accuracy_px") is None else f", good to ~{p['gt_accuracy_px']} px"
+    return head + f"ground truth: {_GROUND_TRUTH.get(gt, gt)}{accuracy}. {result.n_matches} matches, {where}."
 
 
 def precision_lines(prec: dict[str, float]) -> list[str]:
@@ -215,24 +238,29 @@ def precision_lines(prec: dict[str, float]) -> list[str]:
 def pair_markdown(result: PairResult, probe_steps: int = 0) -> str:
     """The summary panel: the pair, a compact table (every metric is in the JSON), hints, F matrices last."""
     p = result.pair
+    columns = [c for c in SUMMARY_COLUMNS if any(c[0] in r.metrics for r in result.estimators)] or list(SUMMARY_COLUMNS[:1])
     lines = [
         f"**{p['name']}**",
         "",
-        f"{p['kind']} pair, frame {p['frame_a']} cam {p['cam_a']} → frame {p['frame_b']} cam {p['cam_b']}; "
-        f"ground truth good to ~{p['gt_accuracy_px']} px. {result.n_matches} matches, {result.n_eval} within "
-        f"{result.eval_threshold_px:g} px of the GT lines (the evaluation matches).",
+        _pair_sentence(result),
         *precision_lines(result.match_precision),
         "",
-        "| F | " + " | ".join(t for _, t in SUMMARY_COLUMNS) + " | s |",
-        "|---|" + "--:|" * (len(SUMMARY_COLUMNS) + 1),
+        "| F | " + " | ".join(t for _, t in columns) + " | s |",
+        "|---|" + "--:|" * (len(columns) + 1),
     ]
     for r in result.estimators:
         if r.error:
-            lines.append(f"| {r.name} | failed |" + " |" * len(SUMMARY_COLUMNS))
+            lines.append(f"| {r.name} | failed |" + " |" * len(columns))
         else:
-            lines.append(f"| {r.name} | " + " | ".join(_fmt(r.metrics.get(k)) for k, _ in SUMMARY_COLUMNS)
+            lines.append(f"| {r.name} | " + " | ".join(_fmt(r.metrics.get(k)) for k, _ in columns)
                          + f" | {r.seconds:.2f} |")
     lines.append("")
+    if result.agreement:
+        names = result.agreement["names"]
+        lines += ["NSGD between the estimators (0 = the same epipolar geometry, FM-Bench's measure):", "",
+                  "| | " + " | ".join(names) + " |", "|---|" + "--:|" * len(names)]
+        lines += [f"| {a} | " + " | ".join(_fmt(v) for v in row) + " |" for a, row in zip(names, result.agreement["matrix"])]
+        lines.append("")
     lines += [f"- **{r.name} failed**: {r.error}" for r in result.estimators if r.error]
     lines += [f"- {n}" for n in result.notes]
     lines.append("- One tab per estimator: its keypoints coloured by its residual (viridis, yellow = ≥ "
@@ -278,7 +306,9 @@ def log_pair(rec, index: int, pair: Pair, result: PairResult, n_lines: int = 30,
             continue
         color = _rgb(colors[r.name])
         if not shared or r.name == L.GT:  # else the blueprint holds its classes
-            rec.log(L.matches(r.name), rr.Points2D(L.match_points(m.x_a, m.x_b, pair.size_a), class_ids=classes[r.name], radii=2.0))
+            rec.log(L.matches(r.name), rr.Points2D(L.match_points(m.x_a, m.x_b, pair.size_a), class_ids=classes[r.name],
+                                                   radii=L.keypoint_radius(pair.size_a),
+                                                   **score_labels(m)))
         lines = {"a": lines_in_a(r.F, m.x_b[sub]), "b": lines_in_b(r.F, m.x_a[sub])}
         for v, e in zip(L.VIEWS, epipoles(r.F)):
             seg, inside = clip_lines(lines[v], *sizes[v])
@@ -296,6 +326,14 @@ def log_pair(rec, index: int, pair: Pair, result: PairResult, n_lines: int = 30,
         log_comparison(rec, result, colors)
     else:
         log_series(rec, result)
+
+
+def score_labels(m) -> dict:
+    """Hover text of a user's matches that carry their matcher's scores (``--matches``): both ends alike."""
+    if getattr(m, "scores", None) is None:
+        return {}
+    text = [f"match {i}: score {v:.3g}" for i, v in enumerate(m.scores)]
+    return {"labels": text + text, "show_labels": False}
 
 
 def match_classes(result: PairResult) -> dict[str, np.ndarray]:
@@ -402,13 +440,21 @@ def log_series(rec, result: PairResult) -> None:
         rec.log(L.motion(key), rr.Scalars(values))
 
 
+PROBE_BY_SCORE = "score"
+
+
 def probe_order(result: PairResult, by: str | None = None) -> np.ndarray:
     """Evaluation matches, worst first: by the largest residual over the estimators (not the GT), or by
-    estimator ``by``. -> match indices (M,)."""
+    estimator ``by``, or (``by="score"``) by the user's matcher's scores, least confident first. -> match indices (M,)."""
+    idx = np.flatnonzero(result.eval_mask) if result.eval_mask is not None else np.zeros(0, int)
+    if by == PROBE_BY_SCORE:
+        scores = getattr(result.matches, "scores", None)
+        if scores is None:
+            raise FvizError(f"--probe-by {by}: these matches have no scores (give --matches with the matcher's scores)")
+        return idx[np.argsort(scores[idx], kind="stable")]
     if by is not None and result.get(by) is None:
         raise FvizError(f"--probe-by {by}: not an estimator of this pair ({', '.join(_names(result))})")
     ok = [r for r in result.estimators if not r.error and r.name != L.GT and (by is None or r.name == by)]
-    idx = np.flatnonzero(result.eval_mask) if result.eval_mask is not None else np.zeros(0, int)
     if not ok or len(idx) == 0:
         return idx
     worst = np.max([r.residuals_px[idx] for r in ok], axis=0)
@@ -432,7 +478,8 @@ def log_probe(rec, index: int, pair: Pair, result: PairResult, steps: int = PROB
     m, ok = result.matches, [r for r in result.estimators if not r.error]
     sizes = {"a": pair.size_a, "b": pair.size_b}
     shift = L.offset_b(pair.size_a)
-    rank = "the largest residual over the estimators" if by is None else f"{by}'s residual"
+    rank = ("the largest residual over the estimators" if by is None else "the matcher's score, lowest first"
+            if by == PROBE_BY_SCORE else f"{by}'s residual")
     marker = L.PROBE_COLOR
     for k, j in enumerate(order):
         rec.set_time(L.PROBE_TIMELINE, sequence=k)
@@ -448,7 +495,8 @@ def log_probe(rec, index: int, pair: Pair, result: PairResult, steps: int = PROB
                        clear=False)
         rows = [f"| {r.name} | {r.residuals_px[j]:.2f} |" for r in ok]
         text = "\n".join([
-            f"**step {k + 1} of {len(order)}**: match {j}, a ({xa[0]:.1f}, {xa[1]:.1f}) → b ({xb[0]:.1f}, {xb[1]:.1f})",
+            f"**step {k + 1} of {len(order)}**: match {j}, a ({xa[0]:.1f}, {xa[1]:.1f}) → b ({xb[0]:.1f}, {xb[1]:.1f})"
+            + ("" if getattr(m, "scores", None) is None else f", score {m.scores[j]:.3g}"),
             "", "| F | SED px |", "|---|--:|", *rows, "",
             f"Worst first, by {rank}. Yellow rings: the match in a and b. A line that misses its ring is that F's "
             "error here (ground truth white).",

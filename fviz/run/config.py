@@ -33,7 +33,8 @@ MIN_PAIRS_PER_WORKER = 4  # fewer pairs than this per process: starting one cost
 CACHE_ITEMS = 16  # features kept per worker, plus 2 per frame of the largest step (frame-major order)
 
 # Columns of the CSV that are text or integers; every other column is a float.
-TEXT_COLUMNS = ("name", "source", "root", "sequence", "kind", "estimator", "norm", "error", "pair_error")
+TEXT_COLUMNS = ("name", "source", "root", "sequence", "kind", "estimator", "norm", "error", "pair_error",
+                "image_a", "image_b", "path_a", "path_b", "ground_truth")
 INT_COLUMNS = ("index", "frame_a", "frame_b", "cam_a", "cam_b", "n_matches", "n_eval")
 ID_COLUMNS = ("index", "frame_a", "frame_b", "cam_a", "cam_b")  # integers that name a pair, not metrics
 
@@ -85,8 +86,43 @@ class Selection:
     frames: tuple[int | None, int | None] = (None, None)
     synthetic: bool = False
     seeds: tuple[int, int] | None = None
+    pairs: str | None = None  # a user's pairs file (fviz.data.pairsfile), or the pairs to take of --colmap
+    images: str | None = None
+    colmap: str | None = None
+    min_shared: int = 100
+    matches: str | None = None  # the user's matches for every pair (fviz.data.correspondences)
+    gt_matches: str | None = None
+    image_a: str | None = None  # two images (fviz.data.images) and the ground truth their flags give
+    image_b: str | None = None
+    K: str | None = None
+    K_a: str | None = None
+    K_b: str | None = None
+    T_ab: str | None = None
+    F_gt: str | None = None
+
+    @property
+    def user(self) -> bool:
+        """Whether the pairs are a user's (--pairs / --colmap / --image-a) rather than KITTI or synthetic ones."""
+        return self.pairs is not None or self.colmap is not None or self.image_a is not None or self.image_b is not None
+
+    def _images_source(self):
+        from fviz.data.sources import TwoImagesSource
+
+        if self.pairs is not None or self.colmap is not None:
+            raise FvizError("--image-a/--image-b and --pairs/--colmap: choose one source")
+        if self.image_a is None or self.image_b is None:
+            raise FvizError(f"--image-{'a' if self.image_a is None else 'b'}: missing (give both images)")
+        return TwoImagesSource(self.image_a, self.image_b, dict(K=self.K, K_a=self.K_a, K_b=self.K_b, T_ab=self.T_ab, F_gt=self.F_gt))
 
     def __post_init__(self):
+        if self.user:
+            others = {"--kitti-root": self.kitti_root, "--sequence": self.sequence, "--drive": self.drive,
+                      "--cams": self.cams, "--synthetic": self.synthetic or None, "--seeds": self.seeds,
+                      "--step": self.steps != (1,) or None, "--pair": self.kinds != ("stereo",) or None}
+            given = [flag for flag, v in others.items() if v is not None]
+            if given:
+                raise FvizError(f"{given[0]}: not with --pairs / --colmap (their pairs are listed; select lines with --frames A:B)")
+            return
         for kind in self.kinds:
             if kind not in PAIR_KINDS:
                 raise FvizError(f"--pair {kind!r}: choose one of {', '.join(PAIR_KINDS)}")
@@ -118,10 +154,34 @@ class Selection:
 
         return cls(**fields_of(d, cls, "selection"))
 
-    def source(self) -> "KittiSource | SyntheticSource":
-        return SyntheticSource(self) if self.synthetic else KittiSource(self)
+    def source(self):
+        """The pairs' source: KittiSource, SyntheticSource or a user's (fviz.data.sources), with the user's
+        matches and ground-truth correspondences attached when given."""
+        gt_flags = [f for f, v in (("--K", self.K), ("--K-a", self.K_a), ("--K-b", self.K_b), ("--T-ab", self.T_ab),
+                                   ("--F-gt", self.F_gt)) if v]
+        if gt_flags and self.image_a is None and self.image_b is None:
+            raise FvizError(f"{gt_flags[0]}: only with --image-a and --image-b")
+        if self.image_a is not None or self.image_b is not None:
+            source = self._images_source()
+        elif self.user:
+            from fviz.data.sources import user_source
+
+            source = user_source(self.pairs, self.images, self.colmap, self.min_shared, self.frames)
+        else:
+            source = SyntheticSource(self) if self.synthetic else KittiSource(self)
+        if self.matches or self.gt_matches:
+            from fviz.data.sources import WithCorrespondences
+
+            source = WithCorrespondences(source, self.matches, self.gt_matches)
+        return source
 
     def describe(self) -> str:
+        if self.image_a is not None:
+            return f"images {self.image_a} -> {self.image_b}" + (f", matches {self.matches}" if self.matches else "")
+        if self.user:
+            what = f"COLMAP model {self.colmap}" if self.colmap else f"pairs file {self.pairs}"
+            frames = "all pairs" if self.frames == (None, None) else f"pairs {_range_text(self.frames)}"
+            return f"{what} ({frames})" + (f", matches {self.matches}" if self.matches else "")
         if self.synthetic:
             return f"synthetic seeds {self.seeds[0]}..{self.seeds[1] - 1} ({'/'.join(self.kinds)})"
         what = f"sequence {self.sequence}" if self.sequence else f"drive {self.drive}" if self.drive else "auto-detected"
@@ -372,7 +432,11 @@ class RunConfig:
 # run.json keys -> the flags that set them (differences are reported in the user's words)
 _FLAGS = {"selection.kitti_root": "--kitti-root", "selection.sequence": "--sequence", "selection.drive": "--drive",
           "selection.kinds": "--pair", "selection.steps": "--step", "selection.cams": "--cams", "selection.frames": "--frames",
-          "selection.synthetic": "--synthetic", "selection.seeds": "--seeds", "options.features": "--features",
+          "selection.synthetic": "--synthetic", "selection.seeds": "--seeds", "selection.pairs": "--pairs",
+          "selection.images": "--images", "selection.colmap": "--colmap", "selection.min_shared": "--min-shared",
+          "selection.matches": "--matches", "selection.gt_matches": "--gt-matches", "selection.image_a": "--image-a",
+          "selection.image_b": "--image-b", "selection.K": "--K", "selection.K_a": "--K-a", "selection.K_b": "--K-b",
+          "selection.T_ab": "--T-ab", "selection.F_gt": "--F-gt", "options.features": "--features",
           "options.max_keypoints": "--max-keypoints", "options.ratio": "--ratio", "options.mutual": "--mutual",
           "options.threshold": "--threshold", "options.confidence": "--confidence", "options.max_iters": "--max-iters",
           "options.seed": "--seed", "norm": "--norm", "eval_threshold": "--eval-threshold",

@@ -49,6 +49,13 @@ def _arrow_schema(columns: list[str]):
                       for c in columns])
 
 
+def figures_known(ground_truth: set[str]) -> dict[str, bool]:
+    """Which standard figures the pairs' ground truth (the rows' ``ground_truth``: pose, F, correspondences,
+    none) allows: pose AUC needs a pose, NSGD recall an F. Runs that predate the column: both."""
+    gts = ground_truth or {"pose"}
+    return {"pose": "pose" in gts, "nsgd": bool(gts - {"none"})}
+
+
 # Per pair and estimator, what the standard figures need (NaN where the estimate failed).
 FIGURE_KEYS = ("pose_err_deg", "nsgd", "sed_median", "sampson_median")
 
@@ -64,11 +71,17 @@ class _Stats:
         self.pairs = self.pair_errors = 0
         self.order: dict[str, None] = {}
         self.per_pair: dict[str, array] = {}
+        self.ground_truth: set[str] = set()  # what the pairs' ground truth is (pose, F, correspondences, none)
         self.precision: dict[str, array] = {}  # match precision per pair (fviz.geometry.precision)
         self.oracle_choice: dict[str, dict[str, int]] = {}  # sweep oracle -> {the grid entry it chose: pairs}
 
+    @property
+    def known(self) -> dict[str, bool]:
+        return figures_known(self.ground_truth)
+
     def add(self, rec: dict[str, Any], rows: list[dict[str, Any]]) -> None:
         self.pairs += 1
+        self.ground_truth.update(row["ground_truth"] for row in rows[:1] if row.get("ground_truth"))
         self.pair_errors += rec["error"] is not None
         for key, v in ((rec.get("result") or {}).get("match_precision") or {}).items():
             if v is not None:
@@ -192,14 +205,15 @@ def summary_markdown(config: RunConfig, stats: _Stats) -> str:
         "",
         f"{config.selection.describe()}" + (f", shard {config.shard[0]}/{config.shard[1]}" if config.shard else "") + ".",
         f"{stats.pairs} pairs ({stats.pair_errors} failed as a whole); features {o.features} (max {o.max_keypoints}, ratio {o.ratio}"
-        f"{', mutual' if o.mutual else ''}); robust threshold {o.threshold} px; evaluation matches: GT symmetric epipolar "
-        f"distance < {config.eval_threshold} px.",
+        f"{', mutual' if o.mutual else ''}); robust threshold {o.threshold} px; " + (
+            "**no ground truth**: residuals over all matches, the estimators compared with each other (agreement_nsgd)."
+            if stats.ground_truth == {"none"} else f"evaluation matches: GT symmetric epipolar distance < {config.eval_threshold} px."),
         f"EPI-ABS / EPI-SQR (`epi_abs`, `epi_sqr`) are per-pair **means** over the evaluation matches, on F normalized by "
         f"**{config.norm.upper()}**; distances in px. Statistics below are over the pairs where the estimator succeeded.",
         "",
         "## Standard figures",
         "",
-        *figures_markdown(standard_figures(stats.per_pair, ests)),
+        *figures_markdown(standard_figures(stats.per_pair, ests, stats.known)),
         "",
         "## Per estimator",
     ]
@@ -325,11 +339,14 @@ BASELINE_NOTE = (
 )
 
 
-def standard_figures(per_pair: dict[str, Iterable[float]], order: Iterable[str] | None = None) -> dict[str, dict[str, Any]]:
+def standard_figures(per_pair: dict[str, Iterable[float]], order: Iterable[str] | None = None,
+                     known: dict[str, bool] | None = None) -> dict[str, dict[str, Any]]:
     """Per estimator, from its per-pair FIGURE_KEYS (flat, NaN = failed): pairs, failed, pose AUC@5/10/20 of
     pose_err_deg (LightGlue's pose_auc; failures infinite), nsgd_recall (share of pairs with nsgd <
     NSGD_RECALL_THRESHOLD; failures miss), medians of the per-pair sed_median and sampson_median over the
-    pairs that succeeded, and whether it is an oracle."""
+    pairs that succeeded, and whether it is an oracle. ``known``: {"pose", "nsgd"} -> whether the pairs'
+    ground truth allows that figure; NaN (n/a) where it does not (no pose, no ground truth)."""
+    known = known or {"pose": True, "nsgd": True}
     from fviz.estimators.registry import is_oracle
     from fviz.geometry import AUC_THRESHOLDS_DEG, NSGD_RECALL_THRESHOLD, pose_auc
 
@@ -342,8 +359,8 @@ def standard_figures(per_pair: dict[str, Iterable[float]], order: Iterable[str] 
             recall = float(np.mean(np.nan_to_num(nsgd_, nan=np.inf) < NSGD_RECALL_THRESHOLD)) if len(v) else math.nan
         out[est] = {
             "pairs": len(v), "failed": failed,
-            "pose_auc": {f"{t:g}": a for t, a in zip(AUC_THRESHOLDS_DEG, pose_auc(pose))},
-            "nsgd_recall": recall,
+            "pose_auc": {f"{t:g}": a if known["pose"] else math.nan for t, a in zip(AUC_THRESHOLDS_DEG, pose_auc(pose))},
+            "nsgd_recall": recall if known["nsgd"] else math.nan,
             "sed_median": float(np.nanmedian(sed)) if failed < len(v) else math.nan,
             "sampson_median": float(np.nanmedian(samp)) if failed < len(v) else math.nan,
             "oracle": is_oracle(est),
@@ -380,7 +397,7 @@ def figures_markdown(figures: dict[str, dict[str, Any]]) -> list[str]:
 def summary_document(config: RunConfig, stats: _Stats) -> dict[str, Any]:
     """summary.json: the standard figures per estimator, machine-readable (NaN written as null)."""
     ests = list(stats.order) or config.series_names()
-    figures = standard_figures(stats.per_pair, ests)
+    figures = standard_figures(stats.per_pair, ests, stats.known)
     clean = lambda v: v if not isinstance(v, float) or math.isfinite(v) else None  # noqa: E731
     return {
         "selection": config.selection.describe(), "pairs": stats.pairs, "pairs_failed": stats.pair_errors,

@@ -81,7 +81,7 @@ def result_from_record(rec: dict[str, Any], config: RunConfig) -> PairResult:
                             e["error"], R=array(e.get("R")), t=array(e.get("t")))
             for e in d["estimators"]]
     return PairResult(
-        pair=d["pair"], norm=d["norm"], eval_threshold_px=d["eval_threshold_px"], F_gt=np.array(d["F_gt"]),
+        pair=d["pair"], norm=d["norm"], eval_threshold_px=d["eval_threshold_px"], F_gt=None if d["F_gt"] is None else np.array(d["F_gt"]),
         n_keypoints=tuple(d["n_keypoints"]), n_matches=d["n_matches"], n_eval=d["n_eval"], timings=d["timings"],
         estimators=ests, notes=d.get("notes", []),
         match_precision={k: _float(v) for k, v in d.get("match_precision", {}).items()},
@@ -152,7 +152,7 @@ _num_or_none = lambda v: v is None or _num(v)  # noqa: E731
 _RECORD_KEYS = {"key": str, "index": lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= 0,
                 "estimators": lambda v: isinstance(v, list) and all(isinstance(n, str) for n in v),
                 "ref": dict, "error": _opt_str}
-_RESULT_KEYS = {"pair": dict, "norm": str, "eval_threshold_px": _num, "F_gt": list,
+_RESULT_KEYS = {"pair": dict, "norm": str, "eval_threshold_px": _num, "F_gt": lambda v: v is None or isinstance(v, list),
                 "n_keypoints": lambda v: isinstance(v, list) and len(v) == 2 and all(_num(n) for n in v),
                 "n_matches": int, "n_eval": int,
                 "timings": lambda v: isinstance(v, dict) and all(_num(x) for x in v.values()),
@@ -189,7 +189,7 @@ def _result_problem(rec: dict) -> str | None:
     result = rec["result"]
     if not isinstance(result, dict):
         return f"'result' is {type(result).__name__}"
-    problem = _typed_problem(result, _RESULT_KEYS, "result.") or _array_problem(result["F_gt"], (3, 3), "result.F_gt", False)
+    problem = _typed_problem(result, _RESULT_KEYS, "result.") or _array_problem(result["F_gt"], (3, 3), "result.F_gt")
     if problem:
         return problem
     if any(result["pair"].get(k) != v for k, v in rec["ref"].items()):
@@ -205,7 +205,8 @@ def _result_problem(rec: dict) -> str | None:
         if problem:
             return problem
         names.append(e["name"])
-    if names[:1] != ["gt"] or len(set(names)) != len(names) or names[1:] != rec["estimators"]:
+    gt = ["gt"] if result["F_gt"] is not None else []  # a pair without ground truth has no gt row
+    if names != gt + rec["estimators"]:
         return "'result.estimators' are not the record's 'estimators'"
     return None
 

@@ -1,0 +1,346 @@
+"""Correspondences a user brings: their matches (``--matches``, used instead of fviz's features) and
+ground-truth correspondences (``--gt-matches``, F_gt fitted to them). Pixel coordinates come out in
+fviz's convention (OpenCV: origin at the centre of the top-left pixel).
+
+``--matches`` formats:
+
+- hloc: ``matches.h5`` with ``features.h5`` beside it (or the one other .h5 in that folder holding
+  keypoints): per image ``features[name]["keypoints"]`` (N, 2); per pair ``matches[pair]["matches0"]``
+  (N0,), -1 = unmatched, and ``matching_scores0``; ``pair`` is hloc's ``names_to_pair`` (names with "/" as
+  "-", joined by "/", or the older "_"), either order. hloc keeps keypoints with OpenCV's origin and adds
+  0.5 itself when it hands them to COLMAP (hloc/triangulation.py ``import_features``): no shift here
+  (:data:`HLOC_PIXEL_SHIFT`).
+- SuperGlue ``*_matches.npz`` (``keypoints0``, ``keypoints1``, ``matches`` (N0,) -1 = unmatched,
+  ``match_confidence``), one file, or a folder of ``{stem0}_{stem1}_matches.npz`` (match_pairs.py's names).
+  Keypoints must be at the images' resolution (match_pairs.py resizes to 640x480 unless ``--resize -1``).
+- plain: text rows ``x_a y_a x_b y_b [score]`` (``#`` comments), or an npz with ``x_a``, ``x_b`` (M, 2) and
+  optional ``scores`` (M,), or ``matches`` (M, 4 or 5).
+
+``--gt-matches``: text rows ``x_a y_a x_b y_b``, or AdelaideRMF / kusvod2 ``x1 y1 1 x2 y2 1 label`` (label 0
+= outlier, left out); one file, or a folder of ``{stem0}_{stem1}.txt``. Coordinates are taken in OpenCV's
+convention (subtract 1 from MATLAB's 1-based pixels first).
+
+A bad file is one line naming the file and the line (or the HDF5 dataset).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from fviz.errors import FvizError
+
+HLOC_PIXEL_SHIFT = 0.0  # hloc's keypoints already have OpenCV's origin (see the module doc)
+MIN_GT = 8  # correspondences needed to fit F_gt (8-point)
+
+
+@dataclass
+class Correspondences:
+    """x_a, x_b: (M, 2) float64 pixels (OpenCV origin); scores: (M,) or None; n_keypoints: (Na, Nb) the
+    keypoints the matches were drawn from, when the file says; path: where they come from."""
+
+    x_a: np.ndarray
+    x_b: np.ndarray
+    scores: np.ndarray | None = None
+    n_keypoints: tuple[int, int] | None = None
+    path: str = ""
+
+    def swapped(self) -> "Correspondences":
+        n = None if self.n_keypoints is None else self.n_keypoints[::-1]
+        return Correspondences(self.x_b, self.x_a, self.scores, n, self.path)
+
+
+# ------------------------------------------------------------------------------ text / npz tables
+
+
+def read_table(path: Path, columns: tuple[int, ...], what: str) -> tuple[np.ndarray, list[int]]:
+    """Rows of numbers (``#`` comments, blank lines skipped) with one of ``columns`` counts -> (rows (M, C),
+    their line numbers); one-line errors name the file and line."""
+    try:
+        text = path.read_text()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise FvizError(f"{what} {path}: cannot read it ({getattr(exc, 'strerror', None) or exc})") from None
+    rows, lines, width = [], [], None
+    for n, raw in enumerate(text.splitlines(), 1):
+        fields = raw.split("#", 1)[0].replace(",", " ").split()
+        if not fields:
+            continue
+        try:
+            values = [float(v) for v in fields]
+        except ValueError:
+            raise FvizError(f"{path}:{n}: not numbers ({raw.strip()[:60]!r})") from None
+        if len(values) not in columns or (width is not None and len(values) != width):
+            expected = width if width is not None else " or ".join(map(str, columns))
+            raise FvizError(f"{path}:{n}: {len(values)} columns, expected {expected}")
+        if not np.isfinite(values).all():
+            raise FvizError(f"{path}:{n}: NaN or infinite numbers")
+        width = len(values)
+        rows.append(values)
+        lines.append(n)
+    if not rows:
+        raise FvizError(f"{what} {path}: no correspondences in it")
+    return np.array(rows, float), lines
+
+
+def check_inside(c: Correspondences, pair, lines: list[int] | None = None) -> Correspondences:
+    """A point outside its image is a one-line error (a wrong file, or keypoints of a resized image)."""
+    for x, (w, h), v in ((c.x_a, pair.size_a, "a"), (c.x_b, pair.size_b, "b")):
+        bad = np.flatnonzero((x[:, 0] < -0.5) | (x[:, 1] < -0.5) | (x[:, 0] > w - 0.5) | (x[:, 1] > h - 0.5))
+        if len(bad):
+            i = int(bad[0])
+            where = f"{c.path}:{lines[i]}" if lines else f"{c.path}: correspondence {i}"
+            raise FvizError(f"{where}: point ({x[i, 0]:.1f}, {x[i, 1]:.1f}) lies outside the {w}x{h} image {v}")
+    return c
+
+
+def small_extent_note(c: Correspondences, pair) -> str | None:
+    """A note when every keypoint sits in a corner box of half the image (keypoints of a resized image?)."""
+    (wa, ha), (wb, hb) = pair.size_a, pair.size_b
+    if len(c.x_a) >= 20 and c.x_a[:, 0].max() < wa / 2 and c.x_a[:, 1].max() < ha / 2 and c.x_b[:, 0].max() < wb / 2 \
+            and c.x_b[:, 1].max() < hb / 2:
+        return (f"the matches of {c.path} all lie in the top-left quarter of the images: were they computed on "
+                "resized images? (SuperGlue's match_pairs.py resizes to 640x480 unless --resize -1)")
+    return None
+
+
+def _pair_file(folder: Path, pair, pattern: str, what: str) -> Path:
+    """The per-pair file of a folder: ``pattern`` formatted with the images' stems."""
+    stems = [Path(n).stem for n in image_names(pair)]
+    path = folder / pattern.format(stem0=stems[0], stem1=stems[1])
+    if path.is_file():
+        return path
+    swapped = folder / pattern.format(stem0=stems[1], stem1=stems[0])
+    if swapped.is_file():
+        return swapped
+    raise FvizError(f"{what} {folder}: no {path.name} for the pair {pair.id.name}")
+
+
+def image_names(pair) -> tuple[str, str]:
+    return (pair.id.image_a or Path(pair.extra.get("path_a", "a")).name,
+            pair.id.image_b or Path(pair.extra.get("path_b", "b")).name)
+
+
+class TableReader:
+    """Plain-text or npz correspondences: one file (one pair) or a folder of per-pair files."""
+
+    def __init__(self, path: Path, what: str, columns: tuple[int, ...], pattern: str, gt: bool):
+        self.path, self.what, self.columns, self.pattern, self.gt = path, what, columns, pattern, gt
+        self.single = not path.is_dir()
+
+    def for_pair(self, pair) -> Correspondences:
+        path = self.path if self.single else _pair_file(self.path, pair, self.pattern, self.what)
+        if path.suffix == ".npz":
+            c, lines = _plain_npz(path, self.what), None
+        else:
+            rows, lines = read_table(path, self.columns, self.what)
+            if rows.shape[1] == 7:  # AdelaideRMF: x1 y1 1 x2 y2 1 label
+                keep = rows[:, 6] != 0
+                lines = [n for n, k in zip(lines, keep) if k]
+                rows = rows[keep][:, [0, 1, 3, 4]]
+            c = Correspondences(rows[:, 0:2].copy(), rows[:, 2:4].copy(), rows[:, 4].copy() if rows.shape[1] == 5 else None,
+                                path=str(path))
+        return check_inside(c, pair, lines)
+
+
+def _plain_npz(path: Path, what: str) -> Correspondences:
+    with _npz(path, what) as z:
+        if "x_a" in z and "x_b" in z:
+            x_a, x_b = np.asarray(z["x_a"], float), np.asarray(z["x_b"], float)
+            scores = np.asarray(z["scores"], float) if "scores" in z else None
+        elif "matches" in z and np.ndim(z["matches"]) == 2 and np.shape(z["matches"])[1] in (4, 5):
+            m = np.asarray(z["matches"], float)
+            x_a, x_b, scores = m[:, 0:2], m[:, 2:4], m[:, 4] if m.shape[1] == 5 else None
+        else:
+            raise FvizError(f"{what} {path}: expected arrays x_a, x_b (M, 2) [scores], or matches (M, 4|5), "
+                            f"or SuperGlue's keypoints0/keypoints1/matches; found {', '.join(z.files) or 'none'}")
+    if x_a.shape != x_b.shape or x_a.ndim != 2 or x_a.shape[1] != 2:
+        raise FvizError(f"{what} {path}: x_a {x_a.shape} and x_b {x_b.shape} must both be (M, 2)")
+    if scores is not None and scores.shape != (len(x_a),):
+        raise FvizError(f"{what} {path}: scores {scores.shape}, expected ({len(x_a)},)")
+    if not (np.isfinite(x_a).all() and np.isfinite(x_b).all()):
+        raise FvizError(f"{what} {path}: NaN or infinite coordinates")
+    return Correspondences(x_a, x_b, scores, path=str(path))
+
+
+def _npz(path: Path, what: str):
+    try:
+        return np.load(path, allow_pickle=False)
+    except (OSError, ValueError) as exc:
+        raise FvizError(f"{what} {path}: not a readable npz ({exc})") from None
+
+
+# ------------------------------------------------------------------------------ SuperGlue npz
+
+
+def from_match_vector(kp0: np.ndarray, kp1: np.ndarray, matches0: np.ndarray, scores0: np.ndarray | None,
+                      where: str) -> Correspondences:
+    """Keypoints (N0, 2), (N1, 2) and matches0 (N0,) (index into kp1, -1 = unmatched) -> correspondences."""
+    kp0, kp1 = np.asarray(kp0, float), np.asarray(kp1, float)
+    m = np.asarray(matches0).astype(np.int64).reshape(-1)
+    for name, kp in (("keypoints0", kp0), ("keypoints1", kp1)):
+        if kp.ndim != 2 or kp.shape[1] != 2:
+            raise FvizError(f"{where}: {name} has shape {kp.shape}, expected (N, 2)")
+    if len(m) != len(kp0):
+        raise FvizError(f"{where}: {len(m)} matches for {len(kp0)} keypoints of image a")
+    if m.max(initial=-1) >= len(kp1) or m.min(initial=-1) < -1:
+        raise FvizError(f"{where}: a match indexes keypoint {int(m.max())} of image b, which has {len(kp1)}")
+    valid = np.flatnonzero(m >= 0)
+    scores = None if scores0 is None else np.asarray(scores0, float).reshape(-1)[valid]
+    return Correspondences(kp0[valid], kp1[m[valid]], scores, (len(kp0), len(kp1)), where)
+
+
+class SuperGlueReader:
+    """SuperGlue's match_pairs.py output: one ``*_matches.npz`` or a folder of them."""
+
+    KEYS = ("keypoints0", "keypoints1", "matches")
+
+    def __init__(self, path: Path):
+        self.path = path
+        self.single = not path.is_dir()
+
+    def for_pair(self, pair) -> Correspondences:
+        path = self.path if self.single else _pair_file(self.path, pair, "{stem0}_{stem1}_matches.npz", "--matches")
+        with _npz(path, "--matches") as z:
+            missing = [k for k in self.KEYS if k not in z]
+            if missing:
+                raise FvizError(f"--matches {path}: no '{missing[0]}' array (SuperGlue's keypoints0, keypoints1, matches)")
+            c = from_match_vector(z["keypoints0"], z["keypoints1"], z["matches"],
+                                  z["match_confidence"] if "match_confidence" in z else None, str(path))
+        stems = [Path(n).stem for n in image_names(pair)]
+        if not self.single and path.name.startswith(f"{stems[1]}_{stems[0]}_") and stems[0] != stems[1]:
+            c = c.swapped()
+        return check_inside(c, pair)
+
+
+# ------------------------------------------------------------------------------ hloc h5
+
+
+def _candidates(pair, v: str) -> list[str]:
+    """Names an image may have in an hloc file: the source's name, then the path's tails (KITTI: image_0/000003.png, ...)."""
+    named = getattr(pair.id, f"image_{v}")
+    parts = Path(pair.extra.get(f"path_{v}", named)).parts
+    tails = ["/".join(parts[i:]) for i in range(len(parts))]
+    return list(dict.fromkeys([n for n in [named, *reversed(tails[-4:])] if n]))
+
+
+def names_to_pair(name0: str, name1: str, separator: str = "/") -> str:
+    """hloc's key of a pair in matches.h5."""
+    return separator.join((name0.replace("/", "-"), name1.replace("/", "-")))
+
+
+class HlocReader:
+    """hloc's matches.h5 and features.h5 (see the module doc)."""
+
+    single = False
+
+    def __init__(self, path: Path):
+        import h5py
+
+        self.path = path
+        self.features = self._features_file(path)
+        self._h5 = h5py
+
+    @staticmethod
+    def _features_file(path: Path) -> Path:
+        beside = path.parent / "features.h5"
+        if beside.is_file():
+            return beside
+        import h5py
+
+        found = []
+        for other in sorted(path.parent.glob("*.h5")):
+            if other == path:
+                continue
+            try:
+                with h5py.File(other, "r") as f:
+                    has = []
+                    f.visit(lambda name: has.append(name) if name.endswith("keypoints") else None)
+                    if has:
+                        found.append(other)
+            except OSError:
+                continue
+        if len(found) != 1:
+            what = "none" if not found else ", ".join(p.name for p in found)
+            raise FvizError(f"--matches {path}: hloc's features file not found beside it (features.h5, or one other "
+                            f".h5 with keypoints; found {what})")
+        return found[0]
+
+    def _open(self, path: Path):
+        try:
+            return self._h5.File(path, "r")
+        except OSError as exc:
+            raise FvizError(f"--matches {path}: not a readable HDF5 file ({exc})") from None
+
+    def for_pair(self, pair) -> Correspondences:
+        names_a, names_b = _candidates(pair, "a"), _candidates(pair, "b")
+        with self._open(self.path) as mf, self._open(self.features) as ff:
+            for a in names_a:
+                for b in names_b:
+                    for key, reverse in ((names_to_pair(a, b), False), (names_to_pair(b, a), True),
+                                         (names_to_pair(a, b, "_"), False), (names_to_pair(b, a, "_"), True)):
+                        if key in mf and isinstance(mf[key], self._h5.Group) and "matches0" in mf[key]:
+                            return check_inside(self._read(mf, ff, key, (b, a) if reverse else (a, b), reverse), pair)
+        raise FvizError(f"--matches {self.path}: no pair {names_to_pair(names_a[0], names_b[0])} (nor reversed) for "
+                        f"{pair.id.name}")
+
+    def _read(self, mf, ff, key: str, names: tuple[str, str], reverse: bool) -> Correspondences:
+        where = f"{self.path}:{key}"
+        kps = []
+        for n in names:
+            if n not in ff or "keypoints" not in ff[n]:
+                raise FvizError(f"--matches {self.features}: no keypoints of image {n}")
+            kps.append(ff[n]["keypoints"][()] - HLOC_PIXEL_SHIFT)
+        g = mf[key]
+        scores = g["matching_scores0"][()] if "matching_scores0" in g else None
+        c = from_match_vector(kps[0], kps[1], g["matches0"][()], scores, where)
+        return c.swapped() if reverse else c
+
+
+# ------------------------------------------------------------------------------ opening by flag
+
+
+def open_matches(path: str | Path):
+    """The reader of ``--matches`` by what the path is (see the module doc)."""
+    path = Path(path)
+    if not path.exists():
+        raise FvizError(f"--matches {path}: no such file or folder")
+    if path.is_dir():
+        if any(path.glob("*_matches.npz")):
+            return SuperGlueReader(path)
+        return TableReader(path, "--matches", (4, 5), "{stem0}_{stem1}.txt", gt=False)
+    if path.suffix in (".h5", ".hdf5"):
+        return HlocReader(path)
+    if path.suffix == ".npz":
+        with _npz(path, "--matches") as z:
+            superglue = all(k in z for k in SuperGlueReader.KEYS)
+        return SuperGlueReader(path) if superglue else TableReader(path, "--matches", (4, 5), "", gt=False)
+    return TableReader(path, "--matches", (4, 5), "", gt=False)
+
+
+def open_gt_matches(path: str | Path) -> TableReader:
+    path = Path(path)
+    if not path.exists():
+        raise FvizError(f"--gt-matches {path}: no such file or folder")
+    return TableReader(path, "--gt-matches", (4, 7), "{stem0}_{stem1}.txt", gt=True)
+
+
+def fit_gt(c: Correspondences, pair) -> tuple[np.ndarray, float, str]:
+    """F_gt fitted to ground-truth correspondences: OpenCV's normalized 8-point (least squares over all of
+    them, rank 2), unit norm -> (F, its own median SED (px), the note that says so)."""
+    import cv2
+
+    from fviz.geometry import normalize, symmetric_epipolar_distance
+
+    if len(c.x_a) < MIN_GT:
+        raise FvizError(f"--gt-matches {c.path}: {len(c.x_a)} correspondences, at least {MIN_GT} needed to fit F_gt")
+    F, _ = cv2.findFundamentalMat(c.x_a.astype(np.float64), c.x_b.astype(np.float64), cv2.FM_8POINT)
+    if F is None or F.shape != (3, 3):
+        raise FvizError(f"--gt-matches {c.path}: no F fits these correspondences (degenerate: all on a plane or a line?)")
+    F = normalize(F, "fbn")
+    sed = symmetric_epipolar_distance(F, c.x_a, c.x_b)
+    med = float(np.median(sed))
+    note = (f"F_gt fitted to the {len(sed)} ground-truth correspondences of {c.path} (OpenCV's normalized 8-point, "
+            f"rank 2): their SED to it, median {med:.3g} px, max {float(sed.max()):.3g} px; the metrics are computed on them")
+    return F, med, note

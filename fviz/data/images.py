@@ -1,0 +1,182 @@
+"""A user's two images with optional cameras and ground truth -> the one Pair type.
+
+Shared by every user source (``fviz inspect pair --image-a A --image-b B``, pairs files, COLMAP models):
+images are read with OpenCV, EXIF orientation applied (as OpenCV's IMREAD_COLOR does); a pairs file's
+``rot`` (0-3, quarter turns counter-clockwise, SuperGlue's ``np.rot90``) turns the image further, and its K
+and F with it (:func:`rotation_map`). Ground truth, each optional: intrinsics K (at the image's resolution),
+a relative pose T_ab (x_b = R x_a + t; F then follows in closed form, F = K_b^-T [t]x R K_a^-1) or an F.
+Pixel coordinates are OpenCV's (origin at the centre of the top-left pixel).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from fviz.data.pair import Pair, PairId
+from fviz.errors import FvizError
+from fviz.geometry import fundamental_from_motion, is_valid, normalize
+
+
+def read_user_image(path: str | Path, what: str = "image") -> np.ndarray:
+    """uint8 (H, W, 3) RGB (or (H, W) for a gray file), EXIF orientation applied; one-line error otherwise."""
+    import cv2
+
+    path = Path(path)
+    if path.is_dir():
+        raise FvizError(f"{what} {path}: a folder, not an image")
+    if not path.exists():
+        raise FvizError(f"{what} {path}: no such file")
+    if not os.access(path, os.R_OK):
+        raise FvizError(f"{what} {path}: cannot read it (permission denied)")
+    img = cv2.imread(str(path), cv2.IMREAD_COLOR)  # applies the EXIF orientation
+    if img is None or img.size == 0:
+        raise FvizError(f"{what} {path}: unreadable or not an image OpenCV can decode")
+    if (img[..., 0] == img[..., 1]).all() and (img[..., 1] == img[..., 2]).all():
+        return img[..., 0].copy()
+    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+
+
+def parse_numbers(text: str, counts: tuple[int, ...], what: str) -> np.ndarray:
+    """Numbers separated by commas or spaces, or a file holding them; exactly one of ``counts`` of them."""
+    source = text
+    if not _looks_numeric(text) and Path(text).is_file():
+        try:
+            source = Path(text).read_text()
+        except (OSError, UnicodeDecodeError) as exc:
+            raise FvizError(f"{what} {text}: cannot read it ({exc})") from None
+    try:
+        values = np.array([float(v) for v in source.replace(",", " ").split()], float)
+    except ValueError:
+        raise FvizError(f"{what} {text!r}: expected {' or '.join(map(str, counts))} numbers (or a file of them)") from None
+    if len(values) not in counts or not np.isfinite(values).all():
+        raise FvizError(f"{what} {text!r}: {len(values)} numbers, expected {' or '.join(map(str, counts))} finite ones")
+    return values
+
+
+def _looks_numeric(text: str) -> bool:
+    try:
+        [float(v) for v in text.replace(",", " ").split()]
+        return True
+    except ValueError:
+        return False
+
+
+def intrinsics(values: np.ndarray, what: str) -> np.ndarray:
+    """fx, fy, cx, cy (4 numbers) or a row-major 3x3 K -> (3, 3)."""
+    if len(values) == 4:
+        fx, fy, cx, cy = values
+        K = np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1.0]])
+    else:
+        K = np.asarray(values, float).reshape(3, 3)
+    if not (K[0, 0] > 0 and K[1, 1] > 0 and abs(np.linalg.det(K)) > 0):
+        raise FvizError(f"{what}: not an intrinsic matrix (focal lengths must be > 0)")
+    return K
+
+
+def parse_K(text: str, what: str) -> np.ndarray:
+    return intrinsics(parse_numbers(text, (4, 9), what), what)
+
+
+def pose_matrix(values: np.ndarray, what: str) -> np.ndarray:
+    """12 (3x4) or 16 (4x4) row-major numbers -> (4, 4) T, with R checked to be a rotation."""
+    T = np.eye(4)
+    T[:3] = np.asarray(values, float).reshape(-1, 4)[:3]
+    R = T[:3, :3]
+    if np.abs(R @ R.T - np.eye(3)).max() > 1e-3 or np.linalg.det(R) < 0:
+        raise FvizError(f"{what}: its 3x3 part is not a rotation (R R^T != I)")
+    return T
+
+
+def parse_T(text: str, what: str = "--T-ab") -> np.ndarray:
+    return pose_matrix(parse_numbers(text, (12, 16), what), what)
+
+
+def parse_F(text: str, what: str = "--F-gt") -> np.ndarray:
+    F = parse_numbers(text, (9,), what).reshape(3, 3)
+    if not is_valid(F):
+        raise FvizError(f"{what}: all zero")
+    return normalize(F, "fbn")
+
+
+def rotation_map(k: int, width: int, height: int) -> np.ndarray:
+    """(3, 3) pixel map of ``np.rot90(image, k)`` (k quarter turns counter-clockwise) of a width x height
+    image: x_rotated = A x. One turn takes (x, y) to (y, W - 1 - x)."""
+    A = np.eye(3)
+    w, h = width, height
+    for _ in range(k % 4):
+        A = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, w - 1.0], [0.0, 0.0, 1.0]]) @ A
+        w, h = h, w
+    return A
+
+
+def ground_truth(K_a, K_b, T_ab, F_gt, what: str) -> dict:
+    """Pair fields (K_a, K_b, R, t, F_gt) from what is known: F from the pose and cameras in closed form,
+    or the given F; both at once must agree with each other (else a one-line error)."""
+    out = {"K_a": K_a, "K_b": K_b, "R": None, "t": None, "F_gt": F_gt}
+    if T_ab is not None:
+        if K_a is None or K_b is None:
+            raise FvizError(f"{what}: a relative pose needs the intrinsics of both images (--K, or --K-a and --K-b)")
+        out["R"], out["t"] = T_ab[:3, :3].copy(), T_ab[:3, 3].copy()
+        if np.linalg.norm(out["t"]) == 0:
+            raise FvizError(f"{what}: the translation is zero (pure rotation): F is undefined")
+        F = normalize(fundamental_from_motion(K_a, K_b, out["R"], out["t"]), "fbn")
+        if F_gt is not None and min(np.abs(F - F_gt).max(), np.abs(F + F_gt).max()) > 1e-6:
+            raise FvizError(f"{what}: the given F and the F of the pose and cameras differ; give one of them")
+        out["F_gt"] = F
+    return out
+
+
+def rotated(image: np.ndarray, K: np.ndarray | None, k: int) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
+    """The image turned k quarter turns (np.rot90), its K (A K) and the pixel map A."""
+    A = rotation_map(k, image.shape[1], image.shape[0])
+    if k % 4 == 0:
+        return image, K, A
+    return np.ascontiguousarray(np.rot90(image, k)), None if K is None else A @ K, A
+
+
+def make_pair(pid: PairId, path_a: Path, path_b: Path, K_a=None, K_b=None, T_ab=None, F_gt=None,
+              rot: tuple[int, int] = (0, 0), gt_accuracy_px: float | None = None, what: str = "pair") -> Pair:
+    """Read both images and build the Pair; ``rot`` turns them (and their cameras and F) as SuperGlue does."""
+    image_a, image_b = read_user_image(path_a, "image a"), read_user_image(path_b, "image b")
+    gt = ground_truth(K_a, K_b, T_ab, F_gt, what)
+    notes = []
+    if image_a.ndim != image_b.ndim:
+        import cv2
+
+        gray = lambda im: cv2.cvtColor(im, cv2.COLOR_RGB2GRAY) if im.ndim == 3 else im  # noqa: E731
+        image_a, image_b = gray(image_a), gray(image_b)
+        notes.append("one image is gray, the other colour: both are evaluated and recorded in gray")
+    if any(rot):
+        image_a, gt["K_a"], A_a = rotated(image_a, gt["K_a"], rot[0])
+        image_b, gt["K_b"], A_b = rotated(image_b, gt["K_b"], rot[1])
+        if gt["F_gt"] is not None:
+            gt["F_gt"] = normalize(np.linalg.inv(A_b).T @ gt["F_gt"] @ np.linalg.inv(A_a), "fbn")
+        notes.append(f"images turned by rot {rot[0]}, {rot[1]} (quarter turns counter-clockwise) as the pairs file says")
+    for v, K, im in (("a", gt["K_a"], image_a), ("b", gt["K_b"], image_b)):
+        if K is not None:
+            h, w = im.shape[:2]
+            if not (-0.5 * w <= K[0, 2] <= 1.5 * w and -0.5 * h <= K[1, 2] <= 1.5 * h):
+                notes.append(f"the principal point of image {v} ({K[0, 2]:.0f}, {K[1, 2]:.0f}) lies far from the "
+                             f"{w}x{h} image: is K at this image's resolution?")
+    return Pair(id=pid, image_a=image_a, image_b=image_b, gt_accuracy_px=gt_accuracy_px, notes=notes,
+                extra={"path_a": str(path_a), "path_b": str(path_b)}, **gt)
+
+
+def two_images(image_a: str, image_b: str, K: str | None = None, K_a: str | None = None, K_b: str | None = None,
+               T_ab: str | None = None, F_gt: str | None = None) -> Pair:
+    """``fviz inspect pair --image-a A --image-b B [--K | --K-a --K-b] [--T-ab] [--F-gt]``."""
+    if K is not None and (K_a is not None or K_b is not None):
+        raise FvizError("--K sets both cameras: give --K, or --K-a and --K-b, not both")
+    Ka = parse_K(K, "--K") if K else parse_K(K_a, "--K-a") if K_a else None
+    Kb = parse_K(K, "--K") if K else parse_K(K_b, "--K-b") if K_b else None
+    if (Ka is None) != (Kb is None):
+        raise FvizError(f"--K-{'b' if Kb is None else 'a'}: missing (give both --K-a and --K-b, or one --K)")
+    pa, pb = Path(image_a), Path(image_b)
+    pid = PairId("images", "", "pair", 0, 1, root=str(pa.parent), image_a=pa.name, image_b=pb.name)
+    if pa.name == pb.name:
+        pid = PairId("images", "", "pair", 0, 1, root="", image_a=str(pa), image_b=str(pb))
+    return make_pair(pid, pa, pb, Ka, Kb, parse_T(T_ab) if T_ab else None, parse_F(F_gt) if F_gt else None,
+                     what="--T-ab/--F-gt")
