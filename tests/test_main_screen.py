@@ -95,7 +95,7 @@ def test_recording_stays_small(inspected):
 
 
 def test_eval_recording_has_metric_and_motion_tabs(eval_run):
-    assert list(R.blueprint_tabs(eval_run / "eval.rrd")) == ["metrics", "motion", "summary"]
+    assert list(R.blueprint_tabs(eval_run / "eval.rrd")) == ["metrics", "motion", "curves", "summary"]
 
 
 def test_open_on_a_tab_that_does_not_exist_is_a_one_line_error(inspected):

@@ -14,10 +14,12 @@ import contextlib
 import os
 import sys
 from pathlib import Path
+from typing import Iterable, Sequence
 
 import numpy as np
 
 from fviz.data.pair import Pair
+from fviz.diagnose import GT_SUSPECT_NOTE
 from fviz.errors import FvizError
 from fviz.evaluate import PairResult
 from fviz.geometry import border_point, clip_lines, describe_epipole, epipoles, lines_in_a, lines_in_b, rotation_angle_deg
@@ -203,14 +205,16 @@ SUMMARY_COLUMNS = (("sed_median", "SED px"), ("rot_err_deg", "rot °"), ("trans_
 def pair_markdown(result: PairResult, probe_steps: int = 0) -> str:
     """The summary panel: the pair, a compact table (every metric is in the JSON), hints, F matrices last."""
     p = result.pair
-    lines = [
+    suspect = [n for n in result.notes if n.startswith(GT_SUSPECT_NOTE)]
+    lines = [f"**⚠ ground truth suspect**: {n.removeprefix(GT_SUSPECT_NOTE)}" for n in suspect] + [""] * bool(suspect)  # reader.SUSPECT_BANNER
+    lines += [
         f"**{p['name']}**",
         "",
         f"{p['kind']} pair, frame {p['frame_a']} cam {p['cam_a']} → frame {p['frame_b']} cam {p['cam_b']}; "
         f"ground truth good to ~{p['gt_accuracy_px']} px. {result.n_matches} matches, {result.n_eval} within "
         f"{result.eval_threshold_px:g} px of the GT lines (the evaluation matches).",
         "",
-        "| F | " + " | ".join(t for _, t in SUMMARY_COLUMNS) + " | s |",
+        "| F | " + " | ".join(t for _, t in SUMMARY_COLUMNS) + " | time s |",
         "|---|" + "--:|" * (len(SUMMARY_COLUMNS) + 1),
     ]
     for r in result.estimators:
@@ -221,7 +225,7 @@ def pair_markdown(result: PairResult, probe_steps: int = 0) -> str:
                          + f" | {r.seconds:.2f} |")
     lines.append("")
     lines += [f"- **{r.name} failed**: {r.error}" for r in result.estimators if r.error]
-    lines += [f"- {n}" for n in result.notes]
+    lines += [f"- {n}" for n in result.notes if n not in suspect]
     lines.append("- One tab per estimator: its keypoints coloured by its residual (viridis, yellow = ≥ "
                  f"{L.RESIDUAL_MAX_PX:g} px off its line), its lines and epipole in its colour, the ground truth's white.")
     if probe_steps:
@@ -229,7 +233,8 @@ def pair_markdown(result: PairResult, probe_steps: int = 0) -> str:
                      f"{probe_steps} worst evaluation matches: each step rings one match and draws its epipolar "
                      "line under every F.")
     lines.append("- SED: symmetric epipolar distance, median over the evaluation matches; rot/trans: pose error "
-                 "from E = K_bᵀ F K_a; the other metrics: `fviz inspect pair ... --json`.")
+                 "from E = K_bᵀ F K_a; inliers: share of all matches; time s: the estimator's run time; the other "
+                 "metrics: `fviz inspect pair ... --json`.")
     for r in result.estimators:
         if r.F is not None:
             F = r.F / np.linalg.norm(r.F)
@@ -446,7 +451,7 @@ def log_probe(rec, index: int, pair: Pair, result: PairResult, steps: int = PROB
 
 def log_static(rec, estimator_names: list[str], series: bool = False, legend: bool = True) -> None:
     """Once per recording: the residual legend (``legend``: when it holds matches) and, for runs (``series``),
-    the names and colours of the metric series and motion tracks."""
+    the names and colours of the metric series and motion tracks, and their legend (``layout.LEGEND``)."""
     import rerun as rr
 
     if legend:
@@ -454,8 +459,119 @@ def log_static(rec, estimator_names: list[str], series: bool = False, legend: bo
     if series:
         colors = L.estimator_colors(estimator_names)
         style = rr.SeriesLines(names=list(colors), colors=[_rgb(c) for c in colors.values()])
-        for path in [L.metric(k) for k in L.SERIES_METRICS] + [L.motion(k) for k, _ in L.MOTION_TRACKS]:
+        for path in SERIES_PATHS:
             rec.log(path, style, static=True)
+        log_legend(rec, colors)
+
+
+SERIES_PATHS = tuple([L.metric(k) for k in L.SERIES_METRICS] + [L.motion(k) for k, _ in L.MOTION_TRACKS])
+
+
+def log_legend(rec, colors: Colors, path: str = L.LEGEND, origin=(0.0, 0.0), pitch: float = 24.0) -> None:
+    """One row per F: a bar in its colour and its name beside it (labels white, on Rerun's grey boxes), drawn in
+    2D on the charts' dark background. -> rows of ``pitch`` units from ``origin``."""
+    import rerun as rr
+
+    x0, y0 = origin
+    rows = list(colors.items())
+    bars = [[(x0, y0 + i * pitch), (x0 + 40.0, y0 + i * pitch)] for i in range(len(rows))]
+    labels = ["ground truth" if n == L.GT else n for n, _ in rows]
+    rec.log(path, rr.LineStrips2D(bars, colors=[_rgb(c) for _, c in rows], radii=pitch / 4),
+            rr.Points2D([(x0 + 120.0, y0 + i * pitch) for i in range(len(rows))], radii=0.1, colors=[(255, 255, 255)],
+                        labels=labels, show_labels=True), static=True)
+
+
+# ---------------------------------------------------------------------------------------------- runs: ranges, curves
+
+
+def series_values(results: Iterable[PairResult]) -> dict[str, dict[str, list[float]]]:
+    """{series path: {F: its value on each pair (NaN where unknown)}} of the runs' plots (metrics and motion),
+    as :func:`log_series` logs them; also ``metrics/{key}`` of the cumulative curves' metrics (CURVE_METRICS)."""
+    out: dict[str, dict[str, list[float]]] = {}
+    keys = dict.fromkeys([*L.SERIES_METRICS, *(k for k, *_ in CURVE_METRICS)])
+    for result in results:
+        names = _names(result)
+        per = {L.metric(k): [np.nan if r.error else r.metrics.get(k, np.nan) for r in result.estimators] for k in keys}
+        per.update({L.motion(k): v for k, v in motion_values(result).items()})
+        for path, values in per.items():
+            for n, v in zip(names, values):
+                out.setdefault(path, {}).setdefault(n, []).append(float(v))
+    return out
+
+
+def ranges_of_values(values: dict[str, dict[str, Sequence[float]]]) -> dict[str, tuple | None]:
+    """{series path: its plot's y range (layout.series_range) or None} of :func:`series_values`."""
+    out = {}
+    for path, per in values.items():
+        if path not in SERIES_PATHS:
+            continue
+        track = path.removeprefix("motion/")
+        zero = path.startswith("metrics/")
+        out[path] = L.series_range(per, L.TRACK_FLOOR.get(track, 1e-3), zero=zero)
+    return out
+
+
+def series_ranges_of(results: Iterable[PairResult]) -> dict[str, tuple | None]:
+    return ranges_of_values(series_values(results))
+
+
+# The cumulative error curves of a run: (metric, title, thresholds, log x axis).
+CURVE_METRICS = (
+    ("pose_err_deg", "pose error (deg): its area up to 5/10/20 deg is pose AUC", np.linspace(0.0, 30.0, 121), False),
+    ("sed_median", "median SED (px)", np.geomspace(0.01, 10.0, 61), True),
+    ("nsgd", "NSGD (FM-Bench; recall@0.05 is the standard figure)", np.geomspace(1e-3, 1.0, 61), True),
+)
+
+
+def cumulative_curve(values: Sequence[float], thresholds: np.ndarray) -> np.ndarray:
+    """Share of the pairs whose value is below each threshold; NaN (a failure) never is. (P,), (T,) -> (T,)."""
+    v = np.nan_to_num(np.asarray(values, float), nan=np.inf)
+    return (v[:, None] < np.asarray(thresholds, float)[None]).mean(axis=0) if len(v) else np.zeros(len(thresholds))
+
+
+def log_curves(rec, per_pair: dict[str, dict[str, Sequence[float]]], colors: Colors) -> None:
+    """``curves/{metric}``: per metric of CURVE_METRICS a panel with one curve per F in its colour (share of the
+    pairs below x), axes and ticks, and the curves' values (AnyValues: ``thresholds``, ``estimators``,
+    ``recall`` row-major F x threshold) for readers. ``per_pair``: {metric: {F: value per pair, NaN failed}}."""
+    import rerun as rr
+
+    white = (200, 200, 200)
+    for i, (key, title, thresholds, log_x) in enumerate(CURVE_METRICS):
+        per = {n: v for n, v in per_pair.get(key, {}).items() if n != L.GT}
+        if not per:
+            continue
+        x0 = i * (L.CURVE_W + L.CURVE_GAP)
+        u = np.log10(thresholds) if log_x else thresholds
+        px = x0 + L.CURVE_W * (u - u[0]) / (u[-1] - u[0])
+        recall = {n: cumulative_curve(v, thresholds) for n, v in per.items()}
+        strips = [np.stack([px, L.CURVE_H * (1 - r)], -1) for r in recall.values()]
+        ticks_x = [t for t in ((0, 5, 10, 20, 30) if not log_x else thresholds[[0, 20, 40, 60]])]
+        axes = [[(x0, 0.0), (x0, L.CURVE_H), (x0 + L.CURVE_W, L.CURVE_H)]]
+        tick_pos, tick_labels = [], []
+        for t in ticks_x:
+            x = x0 + L.CURVE_W * ((np.log10(t) if log_x else t) - u[0]) / (u[-1] - u[0])
+            axes.append([(x, L.CURVE_H), (x, L.CURVE_H + 6)])
+            tick_pos.append((x, L.CURVE_H + 22))
+            tick_labels.append(f"{t:g}")
+        for y in (0.0, 0.5, 1.0):
+            axes.append([(x0 - 6, L.CURVE_H * (1 - y)), (x0, L.CURVE_H * (1 - y))])
+            tick_pos.append((x0 - 30, L.CURVE_H * (1 - y)))
+            tick_labels.append(f"{y:.0%}")
+        tick_pos.append((x0 + L.CURVE_W / 2, -30.0))
+        tick_labels.append(f"share of pairs with {title} < x" + (" (log x)" if log_x else ""))
+        rec.log(f"{L.CURVES}/{key}",
+                rr.LineStrips2D(strips + axes, colors=[_rgb(colors[n]) for n in recall] + [white] * len(axes),
+                                radii=[2.0] * len(strips) + [0.8] * len(axes)),
+                rr.Points2D(tick_pos, radii=0.1, colors=[(255, 255, 255)], labels=tick_labels, show_labels=True),
+                rr.AnyValues(thresholds=np.asarray(thresholds, float), estimators=list(recall),
+                             recall=np.concatenate(list(recall.values()))), static=True)
+    log_legend(rec, {n: c for n, c in colors.items() if n != L.GT}, f"{L.CURVES}/legend", (0.0, L.CURVE_H + 70.0))
+
+
+def suspect_notice(notes: Sequence[str]) -> str:
+    """The overview's warning when the notes say the ground truth is suspect ("" otherwise)."""
+    ref = next((n.rpartition("(reference: ")[2].rstrip(")") for n in notes if n.startswith(GT_SUSPECT_NOTE)), None)
+    return "" if ref is None else f"GROUND TRUTH SUSPECT (summary; trust {ref}'s tab) - "
 
 
 def write_pair_recording(path: str | Path, pair: Pair, result: PairResult, n_lines: int = 30,
@@ -465,7 +581,8 @@ def write_pair_recording(path: str | Path, pair: Pair, result: PairResult, n_lin
     colors = L.estimator_colors(names)
     steps = len(probe_order(result, probe_by)[:max(probe_steps, 0)])  # checks --probe-by before writing
     classes = match_classes(result)
-    bp = L.blueprint(names, (pair.size_a, pair.size_b), single_pair=True, classes=classes if L.GT in classes else None)
+    bp = L.blueprint(names, (pair.size_a, pair.size_b), single_pair=True, classes=classes if L.GT in classes else None,
+                     notice=suspect_notice(result.notes))
     with RecordingWriter(path, "fviz-inspect", bp, index=False) as w:
         log_static(w.rec, names)
         w.rec.set_time(L.PROBE_TIMELINE, sequence=0)
