@@ -153,8 +153,7 @@ def test_cumulative_curves_equal_what_metrics_csv_gives(run):
             assert recall[i].tolist() == pytest.approx(expected), (key, name)
             drawn = np.array(strips[i])[:, 1]  # y down: the top of the panel is 100 %
             assert drawn.tolist() == pytest.approx((L.CURVE_H * (1 - np.array(expected))).tolist())
-        if key == "pose_err_deg":  # its area up to 20 deg is the summary's AUC@20 (trapezoids of a step curve)
-            assert thresholds[0] == 0 and 20.0 in thresholds.tolist()
+        assert thresholds[0] < 0.05 < thresholds[-1]  # FM-Bench's recall threshold inside every curve's range
 
 
 def test_summary_tab_shows_the_runs_figures(run):

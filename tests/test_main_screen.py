@@ -125,8 +125,25 @@ def test_one_colour_per_estimator_everywhere(inspected, eval_run):
         epipole_colors = rows(path, L.epipoles(v), "LineStrips2D:colors")[0]
         for name in names:
             # its lines and its epipole cross in its own tab, its epipole in the overview
-            line_colors = {rgb(c) for c in rows(path, L.est(v, name, "epilines"), "LineStrips2D:colors")[0]}
+            ent = L.est(v, name, "epilines")
+            strips = list(zip(rows(path, ent, "LineStrips2D:colors")[0], rows(path, ent, "LineStrips2D:radii")[0],
+                              rows(path, ent, "LineStrips2D:labels")[0]))
+            line_colors = {rgb(c) for c, radius, _ in strips if radius in (np.float32(0.9), 2.0)}
             assert line_colors == {expected[name]}, (v, name)
+            # below image b: an estimator's numbers; under the ground truth's lines the residual scale
+            captions = [label for _, radius, label in strips if radius == 0.0 and label]
+            if v == "a":
+                assert not captions
+            elif name == "gt":
+                scale = [rgb(c) for c, radius, _ in strips if radius == 6.0]
+                assert scale == [tuple(int(x) for x in c) for c in L.class_color(np.arange(L.RESIDUAL_CLASSES))]
+                assert captions[0].startswith("keypoint residual: on its line")
+            else:
+                metrics = next(e["metrics"] for e in doc["estimators"] if e["name"] == name)
+                assert captions == [f"{name}: SED {metrics['sed_median']:.3g} px | rotation {metrics['rot_err_deg']:.3g}° | "
+                                    f"translation {metrics['trans_err_deg']:.3g}° | NSGD {metrics['nsgd']:.3g} | inliers "
+                                    f"{int(metrics['n_inliers'])} of {doc['n_matches']} ({100 * metrics['inlier_ratio']:.2g} %) | "
+                                    "keypoints: its residual, scale below"]
             overview = {rgb(c) for c, label in zip(epipole_colors, epipole_labels) if label.startswith(f"{name}: epipole")}
             assert overview == {expected[name]}, (v, name)
     # the run's metric series and motion tracks: named after the estimators, in their colours

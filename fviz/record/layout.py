@@ -160,13 +160,14 @@ COMPARED_METRICS = (
     ("trans_err_deg", "translation error (deg)"),
     ("nsgd", "NSGD (FM-Bench)"),
 )
-BAR_WIDTH, BAR_PITCH, BAR_HEAD, BAR_LABEL_X = 360.0, 24.0, 30.0, 450.0
+BAR_WIDTH, BAR_PITCH, BAR_HEAD, BAR_LABEL_X = 300.0, 24.0, 40.0, 450.0
+CDF_H = 120.0  # the residual CDF below the bars
 CHART_BACKGROUND = (32, 32, 36)  # charts and plots: dark, so that the ground truth's white shows in any theme
 
 
 def compare_height(n_bars: int) -> float:
     """Height of the comparison chart with every metric and ``n_bars`` F's."""
-    return len(COMPARED_METRICS) * (BAR_HEAD + (n_bars + 0.5) * BAR_PITCH)
+    return len(COMPARED_METRICS) * (BAR_HEAD + (n_bars + 0.5) * BAR_PITCH) + BAR_HEAD + CDF_H + 30.0
 # Metric series of a run (``metrics/{key}``), one per F, with their titles. f_dist is left out: it misranks
 # (README, Metrics).
 SERIES_METRICS = ("sed_median", "rot_err_deg", "trans_err_deg", "nsgd", "epipole_err_deg", "inlier_ratio")
@@ -233,6 +234,7 @@ MOTION_TRACKS = (
 
 
 GAP_PX = 24  # between image a and image b (below it)
+FOOTER_PX = 64  # below image b: the estimator's numbers and the residual scale (and room above the time panel)
 
 
 def image(view: str) -> str:
@@ -300,7 +302,7 @@ def _images_view(sizes: tuple[tuple[int, int], tuple[int, int]], name: str, cont
     import rerun.blueprint as rrb
 
     (wa, ha), (wb, hb) = sizes
-    bottom = offset_b((wa, ha))[1] + hb
+    bottom = offset_b((wa, ha))[1] + hb + FOOTER_PX
     return rrb.Spatial2DView(origin="/", contents=[f"+ {image('a')}", f"+ {image('b')}", *contents], name=name,
                              visual_bounds=rrb.VisualBounds2D(x_range=[-0.5, max(wa, wb) - 0.5], y_range=[-0.5, bottom - 0.5]),
                              overrides=overrides)
@@ -313,7 +315,7 @@ def overview_tab(names: Sequence[str], sizes, single_pair: bool, notice: str = "
 
     contents = [f"+ {matches(GT)}"] + [f"+ {v}/est/{GT}/**" for v in VIEWS] + [f"+ {epipoles(v)}" for v in VIEWS]
     images = _images_view(sizes, f"{notice}ground truth: residuals (keypoints) and lines (white); every F's epipole", contents)
-    chart = rrb.VisualBounds2D(x_range=[-BAR_PITCH, BAR_LABEL_X + 90.0],
+    chart = rrb.VisualBounds2D(x_range=[-2 * BAR_PITCH, BAR_LABEL_X + 90.0],
                                y_range=[-BAR_HEAD, compare_height(len(names) + 1)])
     side = [rrb.Spatial2DView(origin=COMPARE, name="comparison (one bar per F, in its colour)", visual_bounds=chart,
                               background=CHART_BACKGROUND)] if single_pair else []

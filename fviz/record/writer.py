@@ -11,6 +11,7 @@ is ``layout.END`` instead, which tells a complete file from one cut between two 
 from __future__ import annotations
 
 import contextlib
+import math
 import os
 import sys
 from pathlib import Path
@@ -28,6 +29,19 @@ from fviz.record import layout as L
 FLUSH_PAIRS = 50  # a run's recording is flushed every this many pairs (see RecordingWriter.pair_done)
 JPEG_QUALITY = 50  # a KITTI frame in ~46 KB; zoomed 1.5x, no difference from 95 that a reader sees
 PROBE_STEPS = 20
+PROBE_RING_PX = 3.0  # the probe's ring: a line outside it misses the match by more than 3 px
+
+
+def batching():
+    """Rerun's batcher flushing only when told (a run every FLUSH_PAIRS pairs, or the end) or past 64 MB: its
+    default flushes every 200 ms, so a loaded machine cut one pair's recording into more chunks (each with
+    its own schema: 240 to 252 KB for the same pair). The same data now gives the same file."""
+    import rerun as rr
+
+    cfg = rr.ChunkBatcherConfig.NEVER()
+    cfg.flush_num_bytes = 64 << 20
+    cfg.chunk_max_rows_if_unsorted = 8192  # Rerun's default (NEVER's 256 would split triage's unsorted pairs)
+    return cfg
 
 
 class RecordingWriter:
@@ -59,7 +73,7 @@ class RecordingWriter:
         read_fd, self._write_fd = os.pipe()
         self._pump = threading.Thread(target=self._copy, args=(read_fd,), name="rrd-writer", daemon=True)
         self._pump.start()
-        self.rec = rr.RecordingStream(app_id)
+        self.rec = rr.RecordingStream(app_id, batcher_config=batching())
         self.rec.set_log_time_enabled(False)  # deterministic files: only the ``pair`` timeline
         self.index = index
         try:
@@ -180,14 +194,89 @@ def _epipole_marks(name: str, e: np.ndarray, size: tuple[int, int]):
     return cross, label, arrow
 
 
-def _log_marks(rec, path: str, strips: list, colors: list, radii: list, labels: list, arrows: list,
-               clear: bool = True) -> None:
-    """LineStrips2D (one colour, radius and hover label per strip) and Arrows2D [(origin, vector, colour)].
-    clear: log the arrows even when there are none (over a timeline, so that earlier arrows do not linger);
-    a single pair leaves them out, which saves their columns."""
+# The overview's epipoles: one glyph per F (the ground truth's a ring), so that coinciding epipoles stay
+# distinguishable; unit shapes, scaled by GLYPH_PX.
+GLYPH_PX = 11.0
+_GLYPHS = (
+    [[(-1, 0), (1, 0)], [(0, -1), (0, 1)]],  # +
+    [[(-0.8, -0.8), (0.8, 0.8)], [(-0.8, 0.8), (0.8, -0.8)]],  # x
+    [[(-0.8, -0.8), (0.8, -0.8), (0.8, 0.8), (-0.8, 0.8), (-0.8, -0.8)]],  # square
+    [[(0, -1.1), (1.1, 0), (0, 1.1), (-1.1, 0), (0, -1.1)]],  # diamond
+    [[(0, -1.1), (1, 0.7), (-1, 0.7), (0, -1.1)]],  # triangle
+)
+
+
+def _glyph(k: int, at: np.ndarray, name: str) -> list[np.ndarray]:
+    if name == L.GT:
+        return [_ring(at, 1.3 * GLYPH_PX, 20)]
+    return [at + GLYPH_PX * np.asarray(s, float) for s in _GLYPHS[k % len(_GLYPHS)]]
+
+
+def _log_epipoles(rec, path: str, marks: list, clear: bool) -> None:
+    """The overview's epipoles: per F a glyph of its own in its colour over a black halo, drawn above the
+    lines, and its name in a label stacked above the epipole (one row per F, so that epipoles a few pixels
+    apart keep both names) joined to it by a thin line. ``marks``: [(name, colour, where, hover label, arrows)]."""
     import rerun as rr
 
-    marks = [rr.LineStrips2D(strips, colors=colors, radii=radii, labels=labels, show_labels=False)]
+    halo, strips, colors, radii, labels, arrows, points, names = [], [], [], [], [], [], [], []
+    for k, (name, color, at, label, arrow) in enumerate(marks):
+        glyph = _glyph(k - 1, at, name)
+        halo += glyph
+        strips += glyph
+        colors += [color] * len(glyph)
+        radii += [1.6] * len(glyph)
+        labels += [label] * len(glyph)
+        arrows += arrow
+        tag = at + (0.0, -2.2 * GLYPH_PX - 18.0 * k)
+        strips.append(np.stack([at + (0.0, -1.3 * GLYPH_PX), tag]))
+        colors.append(color)
+        radii.append(0.5)
+        labels.append(label)
+        points.append(tag)
+        names.append(name)
+    rec.log(path, rr.LineStrips2D(halo + strips, colors=[(0, 0, 0)] * len(halo) + colors,
+                                  radii=[3.2] * len(halo) + radii, labels=[""] * len(halo) + labels, show_labels=False,
+                                  draw_order=40.0),
+            rr.Points2D(points, radii=0.1, colors=[(255, 255, 255)], labels=names, show_labels=True, draw_order=41.0),
+            *([rr.Arrows2D(origins=[a[0] for a in arrows] or np.zeros((0, 2)), vectors=[a[1] for a in arrows] or np.zeros((0, 2)),
+                           colors=[a[2] for a in arrows] or None, radii=2.0)] if arrows or clear else []))
+
+
+def estimator_caption(r, result: PairResult) -> str:
+    """An estimator tab's numbers, below image b: "ransac: SED 0.246 px | rotation 0.172° | ..."."""
+    m = r.metrics
+    return (f"{r.name}: SED {_fmt(m.get('sed_median'))} px | rotation {_fmt(m.get('rot_err_deg'))}° | translation "
+            f"{_fmt(m.get('trans_err_deg'))}° | NSGD {_fmt(m.get('nsgd'))} | inliers {int(m.get('n_inliers', 0))} of "
+            f"{result.n_matches} ({_fmt(100 * m.get('inlier_ratio', np.nan), 2)} %) | keypoints: its residual, scale below")
+
+
+def caption_strip(size_b: tuple[int, int], r, result: PairResult) -> tuple:
+    """The estimator's numbers below image b, as a labelled invisible strip: (strip, colour, radius, label)."""
+    at = np.array([size_b[0] / 2, size_b[1] + 18.0])
+    return np.stack([at, at]), _rgb((255, 255, 255)), 0.0, estimator_caption(r, result)
+
+
+def residual_scale(size_b: tuple[int, int]) -> list[tuple]:
+    """The keypoints' colour scale below image b: one segment per residual bin, its ends labelled by invisible
+    strips. -> [(strip, colour, radius, label)]."""
+    y, step = size_b[1] + 46.0, 28.0
+    x0 = size_b[0] / 2 - step * L.RESIDUAL_CLASSES / 2
+    colors = L.class_color(np.arange(L.RESIDUAL_CLASSES))
+    out = [(np.array([(x0 + c * step, y), (x0 + (c + 1) * step, y)]), colors[c], 6.0, "") for c in range(L.RESIDUAL_CLASSES)]
+    for x, text in ((x0 - 150.0, "keypoint residual: on its line (0 px)"), (x0 + step * L.RESIDUAL_CLASSES + 90.0,
+                                                                           f">= {L.RESIDUAL_MAX_PX:g} px off")):
+        out.append((np.array([(x, y), (x, y)]), _rgb((255, 255, 255)), 0.0, text))
+    return out
+
+
+def _log_marks(rec, path: str, strips: list, colors: list, radii: list, labels: list, arrows: list,
+               clear: bool = True, show_labels: bool = False) -> None:
+    """LineStrips2D (one colour, radius and label per strip: shown with ``show_labels``, else on hover) and
+    Arrows2D [(origin, vector, colour)]. clear: log the arrows even when there are none (over a timeline, so
+    that earlier arrows do not linger); a single pair leaves them out, which saves their columns."""
+    import rerun as rr
+
+    marks = [rr.LineStrips2D(strips, colors=colors, radii=radii, labels=labels, show_labels=show_labels)]
     if arrows or clear:
         marks.append(rr.Arrows2D(origins=[a[0] for a in arrows] or np.zeros((0, 2)), vectors=[a[1] for a in arrows]
                                  or np.zeros((0, 2)), colors=[a[2] for a in arrows] or None, radii=2.0))
@@ -264,7 +353,7 @@ def log_pair(rec, index: int, pair: Pair, result: PairResult, n_lines: int = 30,
     sub = line_subset(result, n_lines)
     classes = match_classes(result)
     shared = single_pair and L.GT in classes  # one pair: positions once, see layout.estimator_tab
-    marks = {v: ([], [], [], [], []) for v in L.VIEWS}  # every F's epipole: strips, colours, radii, labels, arrows
+    marks: dict[str, list] = {v: [] for v in L.VIEWS}  # every F's epipole: (name, colour, where, label, arrows)
     for r in result.estimators:
         if r.error:
             continue
@@ -278,12 +367,15 @@ def log_pair(rec, index: int, pair: Pair, result: PairResult, n_lines: int = 30,
             arrows = [] if arrow is None else [(*arrow, color)]
             n = int(inside.sum())
             # lines unlabelled (hovering one names its entity, hence the estimator); the epipole's label says where
-            _log_marks(rec, L.est(v, r.name, "epilines"), [*seg[inside], *cross], [color] * (n + 2),
-                       [0.9] * n + [2.0, 2.0], [""] * n + [label, label], arrows, clear=not single_pair)
-            for target, value in zip(marks[v], ([*cross], [color, color], [2.0, 2.0], [label, label], arrows)):
-                target.extend(value)
+            # below image b: the estimator's numbers, or under the ground truth's lines (in every tab) the residual
+            # scale; labelled strips of this entity (a Points2D would add its columns to the file)
+            extra = [] if v != "b" else residual_scale(sizes[v]) if r.name == L.GT else [caption_strip(sizes[v], r, result)]
+            _log_marks(rec, L.est(v, r.name, "epilines"), [*seg[inside], *cross, *(x[0] for x in extra)],
+                       [color] * (n + 2) + [x[1] for x in extra], [0.9] * n + [2.0, 2.0] + [x[2] for x in extra],
+                       [""] * n + [label, ""] + [x[3] for x in extra], arrows, clear=not single_pair, show_labels=True)
+            marks[v].append((r.name, color, cross.mean(axis=(0, 1)), label, arrows))
     for v in L.VIEWS:
-        _log_marks(rec, L.epipoles(v), *marks[v], clear=not single_pair)
+        _log_epipoles(rec, L.epipoles(v), marks[v], clear=not single_pair)
     if single_pair:
         log_comparison(rec, result, colors)
     else:
@@ -300,35 +392,69 @@ def _rgb(color) -> np.ndarray:
     return np.asarray(color, np.uint8)
 
 
+def bar_lengths(values: Sequence[float], width: float) -> np.ndarray:
+    """Bar lengths on a log scale, so that 0.17 and 0.21 px part beside 7.1: the largest value fills
+    ``width``, a decade below the smallest positive one (or 1 % of the largest) starts at 0; zero, negative and
+    missing values get no bar. (N,) -> (N,)."""
+    v = np.asarray(values, float)
+    pos = v[np.isfinite(v) & (v > 0)]
+    if not len(pos):
+        return np.zeros(len(v))
+    hi = float(pos.max())
+    lo = min(float(pos.min()) / 10, hi / 100)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out = width * (np.log10(v) - np.log10(lo)) / (np.log10(hi) - np.log10(lo))
+    return np.where(np.isfinite(v) & (v > 0), out, 0.0)
+
+
+# Per-point residual CDF on the overview's chart: share of the evaluation matches within x px of each F's lines.
+RESIDUAL_CDF_PX = np.geomspace(0.01, 10.0, 41)
+
+
 def log_comparison(rec, result: PairResult, colors: Colors) -> None:
-    """The overview's chart, drawn in 2D (y down): per metric a group of horizontal bars, one per F in its
-    colour, lengths relative to the group's largest value, each labelled "name value" in a column to the
-    right (Rerun centres labels on their point)."""
+    """The overview's chart, drawn in 2D (y down): per metric a title and one horizontal bar per F in its
+    colour on a log scale (:func:`bar_lengths`), each labelled "name value" just right of its bar; below, the
+    CDF of each F's residuals (SED) over the evaluation matches (log x)."""
     import rerun as rr
 
-    width, pitch, head, label_x = L.BAR_WIDTH, L.BAR_PITCH, L.BAR_HEAD, L.BAR_LABEL_X
-    bars, bar_colors, points, labels = [], [], [], []
+    width, pitch, head = L.BAR_WIDTH, L.BAR_PITCH, L.BAR_HEAD
+    bars, bar_colors, bar_radii, points, labels = [], [], [], [], []
     y = 0.0
     for key, title in L.COMPARED_METRICS:
         values = [np.nan if r.error else float(r.metrics.get(key, np.nan)) for r in result.estimators]
-        finite = [v for v in values if np.isfinite(v)]
-        if not finite:
+        if not any(np.isfinite(values)):
             continue
         points.append((width / 2, y))
-        labels.append(title)
+        labels.append(title + " (log scale)")
         y += head
-        top = max(max(finite), 1e-12)
-        for r, v in zip(result.estimators, values):
-            length = width * v / top if np.isfinite(v) else 0.0
+        for r, v, length in zip(result.estimators, values, bar_lengths(values, width)):
             bars.append([(0.0, y), (max(length, 0.5), y)])
             bar_colors.append(_rgb(colors[r.name]))
-            points.append((label_x, y))
-            labels.append(f"{r.name}: {'failed' if r.error else _fmt(v)}")
+            bar_radii.append(pitch / 3)
+            text = f"{r.name}: {'failed' if r.error else _fmt(v)}"
+            points.append((max(length, 0.5) + 12.0 + 4.2 * len(text), y))  # Rerun centres a label on its point
+            labels.append(text)
             y += pitch
         y += pitch / 2
+    y0 = y + head  # the residual CDF panel
+    ok = [r for r in result.estimators if not r.error and r.residuals_px is not None and result.eval_mask is not None]
+    u = np.log10(RESIDUAL_CDF_PX)
+    px = width * (u - u[0]) / (u[-1] - u[0])
+    for r in ok:
+        recall = cumulative_curve(r.residuals_px[result.eval_mask], RESIDUAL_CDF_PX)
+        bars.append(np.stack([px, y0 + L.CDF_H * (1 - recall)], -1))
+        bar_colors.append(_rgb(colors[r.name]))
+        bar_radii.append(1.5)
+    if ok:
+        bars.append([(0.0, y0), (0.0, y0 + L.CDF_H), (width, y0 + L.CDF_H)])
+        bar_colors.append(_rgb((200, 200, 200)))
+        bar_radii.append(0.6)
+        points += [(width / 2, y0 - 16.0), (0.0, y0 + L.CDF_H + 14.0), (width * 2 / 3, y0 + L.CDF_H + 14.0),
+                   (width, y0 + L.CDF_H + 14.0), (-14.0, y0), (-14.0, y0 + L.CDF_H)]
+        labels += ["matches with SED < x (per F)", "0.01", "1 px", "10", "100%", "0"]
     # labels white: Rerun draws them on grey boxes, where coloured text is hard to read; the bar beside each
     # label carries the colour
-    rec.log(L.COMPARE, rr.LineStrips2D(bars, colors=bar_colors, radii=pitch / 3),
+    rec.log(L.COMPARE, rr.LineStrips2D(bars, colors=bar_colors, radii=bar_radii),
             rr.Points2D(points, radii=0.1, colors=[(255, 255, 255)], labels=labels, show_labels=True))
 
 
@@ -433,17 +559,18 @@ def log_probe(rec, index: int, pair: Pair, result: PairResult, steps: int = PROB
         for v, lines, ring in (("a", [lines_in_a(r.F, xb[None]) for r in ok], xa), ("b", [lines_in_b(r.F, xa[None]) for r in ok], xb)):
             seg, inside = clip_lines(np.concatenate(lines), *sizes[v])
             drawn = [r for r, i in zip(ok, inside) if i]
-            strips = [*seg[inside], _ring(ring)] + ([[xa, xb + shift]] if v == "a" else [])  # a's frame is the root
+            strips = [*seg[inside], _ring(ring, PROBE_RING_PX)] + ([[xa, xb + shift]] if v == "a" else [])  # a's frame is the root
             _log_marks(rec, L.probe(v), strips, [_rgb(colors[r.name]) for r in drawn] + [marker] * (len(strips) - len(drawn)),
-                       [1.2] * len(drawn) + [1.5, 0.6][: len(strips) - len(drawn)],
+                       list(np.linspace(1.6, 0.7, len(drawn))) + [0.8, 0.6][: len(strips) - len(drawn)],
                        [f"{r.name}: epipolar line of match {j}" for r in drawn] + [f"match {j}"] * (len(strips) - len(drawn)), [],
                        clear=False)
         rows = [f"| {r.name} | {r.residuals_px[j]:.2f} |" for r in ok]
         text = "\n".join([
             f"**step {k + 1} of {len(order)}**: match {j}, a ({xa[0]:.1f}, {xa[1]:.1f}) → b ({xb[0]:.1f}, {xb[1]:.1f})",
             "", "| F | SED px |", "|---|--:|", *rows, "",
-            f"Worst first, by {rank}. Yellow rings: the match in a and b. A line that misses its ring is that F's "
-            "error here (ground truth white).",
+            f"Worst first, by {rank}. Yellow rings ({PROBE_RING_PX:g} px radius): the match in a and b. A line that "
+            f"misses its ring is more than {PROBE_RING_PX:g} px off there (ground truth white); lines are drawn "
+            "thinner in estimator order, so that one on top of another still shows both.",
         ])
         rec.log(L.PROBE_TEXT, rr.TextDocument(text, media_type="text/markdown"))
     return len(order)
@@ -517,9 +644,9 @@ def series_ranges_of(results: Iterable[PairResult]) -> dict[str, tuple | None]:
 
 # The cumulative error curves of a run: (metric, title, thresholds, log x axis).
 CURVE_METRICS = (
-    ("pose_err_deg", "pose error (deg): its area up to 5/10/20 deg is pose AUC", np.linspace(0.0, 30.0, 121), False),
+    ("pose_err_deg", "pose error (deg)", np.geomspace(0.01, 30.0, 71), True),
     ("sed_median", "median SED (px)", np.geomspace(0.01, 10.0, 61), True),
-    ("nsgd", "NSGD (FM-Bench; recall@0.05 is the standard figure)", np.geomspace(1e-3, 1.0, 61), True),
+    ("nsgd", "NSGD (FM-Bench)", np.geomspace(1e-3, 1.0, 61), True),
 )
 
 
@@ -545,7 +672,9 @@ def log_curves(rec, per_pair: dict[str, dict[str, Sequence[float]]], colors: Col
         px = x0 + L.CURVE_W * (u - u[0]) / (u[-1] - u[0])
         recall = {n: cumulative_curve(v, thresholds) for n, v in per.items()}
         strips = [np.stack([px, L.CURVE_H * (1 - r)], -1) for r in recall.values()]
-        ticks_x = [t for t in ((0, 5, 10, 20, 30) if not log_x else thresholds[[0, 20, 40, 60]])]
+        lo, hi = float(thresholds[0]), float(thresholds[-1])
+        ticks_x = ([10.0**k for k in range(math.ceil(math.log10(lo) - 1e-9), math.floor(math.log10(hi) + 1e-9) + 1)]
+                   if log_x else list(np.linspace(lo, hi, 5)))
         axes = [[(x0, 0.0), (x0, L.CURVE_H), (x0 + L.CURVE_W, L.CURVE_H)]]
         tick_pos, tick_labels = [], []
         for t in ticks_x:
@@ -558,7 +687,7 @@ def log_curves(rec, per_pair: dict[str, dict[str, Sequence[float]]], colors: Col
             tick_pos.append((x0 - 30, L.CURVE_H * (1 - y)))
             tick_labels.append(f"{y:.0%}")
         tick_pos.append((x0 + L.CURVE_W / 2, -30.0))
-        tick_labels.append(f"share of pairs with {title} < x" + (" (log x)" if log_x else ""))
+        tick_labels.append(f"share of the pairs with {title} < x" + (" (log x)" if log_x else ""))
         rec.log(f"{L.CURVES}/{key}",
                 rr.LineStrips2D(strips + axes, colors=[_rgb(colors[n]) for n in recall] + [white] * len(axes),
                                 radii=[2.0] * len(strips) + [0.8] * len(axes)),
