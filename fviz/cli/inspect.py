@@ -156,7 +156,7 @@ def _print_table(result, path: Path) -> None:
     t.add_column("time s", justify="right", no_wrap=True, min_width=6)
     for r in result.estimators:
         if r.error:
-            t.add_row(r.name, f"[red]failed: {r.error}[/red]", *[""] * (len(cols) - 1), "")
+            t.add_row(r.name, f"[red]failed: {r.error.splitlines()[0]}[/red]", *[""] * (len(cols) - 1), "")
         else:
             t.add_row(r.name, *(f"{r.metrics.get(c, float('nan')):.4g}" for c, _ in cols), f"{r.seconds:.3f}")
     console = Console(width=max(Console().width, 130))

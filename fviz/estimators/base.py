@@ -11,6 +11,7 @@ invalid (NaN, zero) matrices into an :class:`Estimate` with ``error`` set.
 
 from __future__ import annotations
 
+import os
 import time
 from dataclasses import dataclass
 from typing import Any, Callable
@@ -41,7 +42,12 @@ def run_estimator(name: str, fn: EstimateFn, pair, x_a: np.ndarray, x_b: np.ndar
     try:
         out = fn(pair, x_a, x_b)
     except Exception as exc:  # an estimator failing must not stop the others
-        return Estimate(name, None, None, time.perf_counter() - t0, f"{type(exc).__name__}: {exc}")
+        error = f"{type(exc).__name__}: {exc}"
+        if os.environ.get("FVIZ_DEBUG"):  # fviz --debug: where it raised, for the author of the estimator
+            import traceback
+
+            error += "\n" + "".join(traceback.format_exception(exc)).rstrip()
+        return Estimate(name, None, None, time.perf_counter() - t0, error)
     seconds = time.perf_counter() - t0
     try:
         F, mask = _interpret(out, len(x_a))

@@ -160,8 +160,8 @@ COMPARED_METRICS = (
     ("trans_err_deg", "translation error (deg)"),
     ("nsgd", "NSGD (FM-Bench)"),
 )
-BAR_WIDTH, BAR_PITCH, BAR_HEAD, BAR_LABEL_X = 300.0, 24.0, 40.0, 450.0
-CDF_H = 120.0  # the residual CDF below the bars
+BAR_WIDTH, BAR_PITCH, BAR_HEAD, BAR_LABEL_X = 300.0, 26.0, 40.0, 450.0
+CDF_H = 90.0  # the residual CDF below the bars
 CHART_BACKGROUND = (32, 32, 36)  # charts and plots: dark, so that the ground truth's white shows in any theme
 
 
@@ -320,7 +320,7 @@ def overview_tab(names: Sequence[str], sizes, single_pair: bool, notice: str = "
     side = [rrb.Spatial2DView(origin=COMPARE, name="comparison (one bar per F, in its colour)", visual_bounds=chart,
                               background=CHART_BACKGROUND)] if single_pair else []
     side.append(rrb.TextDocumentView(origin=SUMMARY, name="summary"))
-    return rrb.Horizontal(images, rrb.Vertical(*side, row_shares=[5, 4][: len(side)]), column_shares=[5, 2], name="overview")
+    return rrb.Horizontal(images, rrb.Vertical(*side, row_shares=[3, 2][: len(side)]), column_shares=[5, 2], name="overview")
 
 
 def estimator_tab(name: str, sizes, classes: np.ndarray | None = None):

@@ -202,8 +202,7 @@ _GLYPHS = (
     [[(-0.8, -0.8), (0.8, 0.8)], [(-0.8, 0.8), (0.8, -0.8)]],  # x
     [[(-0.8, -0.8), (0.8, -0.8), (0.8, 0.8), (-0.8, 0.8), (-0.8, -0.8)]],  # square
     [[(0, -1.1), (1.1, 0), (0, 1.1), (-1.1, 0), (0, -1.1)]],  # diamond
-    [[(0, -1.1), (1, 0.7), (-1, 0.7), (0, -1.1)]],  # triangle
-)
+)  # each symmetric about the epipole: its bounding box is centred there
 
 
 def _glyph(k: int, at: np.ndarray, name: str) -> list[np.ndarray]:
@@ -212,10 +211,11 @@ def _glyph(k: int, at: np.ndarray, name: str) -> list[np.ndarray]:
     return [at + GLYPH_PX * np.asarray(s, float) for s in _GLYPHS[k % len(_GLYPHS)]]
 
 
-def _log_epipoles(rec, path: str, marks: list, clear: bool) -> None:
+def _log_epipoles(rec, path: str, marks: list, clear: bool, extra=()) -> None:
     """The overview's epipoles: per F a glyph of its own in its colour over a black halo, drawn above the
     lines, and its name in a label stacked above the epipole (one row per F, so that epipoles a few pixels
-    apart keep both names) joined to it by a thin line. ``marks``: [(name, colour, where, hover label, arrows)]."""
+    apart keep both names) joined to it by a thin line. ``marks``: [(name, colour, where, hover label, arrows)];
+    ``extra``: more labels [(where, text)] (the residual scale's ends)."""
     import rerun as rr
 
     halo, strips, colors, radii, labels, arrows, points, names = [], [], [], [], [], [], [], []
@@ -227,13 +227,15 @@ def _log_epipoles(rec, path: str, marks: list, clear: bool) -> None:
         radii += [1.6] * len(glyph)
         labels += [label] * len(glyph)
         arrows += arrow
-        tag = at + (0.0, -2.2 * GLYPH_PX - 18.0 * k)
+        tag = at + (0.0, -2.2 * GLYPH_PX - 26.0 * k)
         strips.append(np.stack([at + (0.0, -1.3 * GLYPH_PX), tag]))
         colors.append(color)
         radii.append(0.5)
         labels.append(label)
         points.append(tag)
         names.append(name)
+    points += [at for at, _ in extra]
+    names += [text for _, text in extra]
     rec.log(path, rr.LineStrips2D(halo + strips, colors=[(0, 0, 0)] * len(halo) + colors,
                                   radii=[3.2] * len(halo) + radii, labels=[""] * len(halo) + labels, show_labels=False,
                                   draw_order=40.0),
@@ -247,26 +249,35 @@ def estimator_caption(r, result: PairResult) -> str:
     m = r.metrics
     return (f"{r.name}: SED {_fmt(m.get('sed_median'))} px | rotation {_fmt(m.get('rot_err_deg'))}° | translation "
             f"{_fmt(m.get('trans_err_deg'))}° | NSGD {_fmt(m.get('nsgd'))} | inliers {int(m.get('n_inliers', 0))} of "
-            f"{result.n_matches} ({_fmt(100 * m.get('inlier_ratio', np.nan), 2)} %) | keypoints: its residual, scale below")
+            f"{result.n_matches} ({_fmt(100 * m.get('inlier_ratio', np.nan), 2)} %) | keypoints: its residual, dark blue "
+            f"on its line to yellow >= {L.RESIDUAL_MAX_PX:g} px (scale below)")
 
 
 def caption_strip(size_b: tuple[int, int], r, result: PairResult) -> tuple:
     """The estimator's numbers below image b, as a labelled invisible strip: (strip, colour, radius, label)."""
     at = np.array([size_b[0] / 2, size_b[1] + 18.0])
-    return np.stack([at, at]), _rgb((255, 255, 255)), 0.0, estimator_caption(r, result)
+    return np.stack([at, at]), _rgb((70, 70, 76)), 0.0, estimator_caption(r, result)
+
+
+SCALE_STEP = 28.0  # one residual bin of the scale below image b
+
+
+def scale_ends(size_b: tuple[int, int]) -> list[tuple[np.ndarray, str]]:
+    """Where the residual scale's end labels go (image b's frame) and what they say."""
+    y, x0 = size_b[1] + 46.0, size_b[0] / 2 - SCALE_STEP * L.RESIDUAL_CLASSES / 2
+    return [(np.array([x0 - 150.0, y]), "keypoint residual: on its line (0 px)"),
+            (np.array([x0 + SCALE_STEP * L.RESIDUAL_CLASSES + 80.0, y]), f">= {L.RESIDUAL_MAX_PX:g} px off its line")]
 
 
 def residual_scale(size_b: tuple[int, int]) -> list[tuple]:
-    """The keypoints' colour scale below image b: one segment per residual bin, its ends labelled by invisible
-    strips. -> [(strip, colour, radius, label)]."""
-    y, step = size_b[1] + 46.0, 28.0
-    x0 = size_b[0] / 2 - step * L.RESIDUAL_CLASSES / 2
+    """The keypoints' colour scale below image b (under the ground truth's lines, so in every tab): one segment
+    per residual bin. -> [(strip, colour, radius, label)]; the ends are labelled in the estimators' captions and
+    on the overview (:func:`scale_ends`)."""
+    y, x0 = size_b[1] + 46.0, size_b[0] / 2 - SCALE_STEP * L.RESIDUAL_CLASSES / 2
     colors = L.class_color(np.arange(L.RESIDUAL_CLASSES))
-    out = [(np.array([(x0 + c * step, y), (x0 + (c + 1) * step, y)]), colors[c], 6.0, "") for c in range(L.RESIDUAL_CLASSES)]
-    for x, text in ((x0 - 150.0, "keypoint residual: on its line (0 px)"), (x0 + step * L.RESIDUAL_CLASSES + 90.0,
-                                                                           f">= {L.RESIDUAL_MAX_PX:g} px off")):
-        out.append((np.array([(x, y), (x, y)]), _rgb((255, 255, 255)), 0.0, text))
-    return out
+    return [(np.array([(x0 + c * SCALE_STEP, y), (x0 + (c + 1) * SCALE_STEP, y)]), colors[c], 6.0,
+             f"keypoint residual {c * L.RESIDUAL_BIN_PX:g} px" + ("+" if c == L.RESIDUAL_CLASSES - 1 else ""))
+            for c in range(L.RESIDUAL_CLASSES)]
 
 
 def _log_marks(rec, path: str, strips: list, colors: list, radii: list, labels: list, arrows: list,
@@ -372,10 +383,11 @@ def log_pair(rec, index: int, pair: Pair, result: PairResult, n_lines: int = 30,
             extra = [] if v != "b" else residual_scale(sizes[v]) if r.name == L.GT else [caption_strip(sizes[v], r, result)]
             _log_marks(rec, L.est(v, r.name, "epilines"), [*seg[inside], *cross, *(x[0] for x in extra)],
                        [color] * (n + 2) + [x[1] for x in extra], [0.9] * n + [2.0, 2.0] + [x[2] for x in extra],
-                       [""] * n + [label, ""] + [x[3] for x in extra], arrows, clear=not single_pair, show_labels=True)
+                       [""] * n + [label, label] + [x[3] for x in extra], arrows, clear=not single_pair,
+                       show_labels=r.name != L.GT)
             marks[v].append((r.name, color, cross.mean(axis=(0, 1)), label, arrows))
     for v in L.VIEWS:
-        _log_epipoles(rec, L.epipoles(v), marks[v], clear=not single_pair)
+        _log_epipoles(rec, L.epipoles(v), marks[v], clear=not single_pair, extra=scale_ends(sizes[v]) if v == "b" else ())
     if single_pair:
         log_comparison(rec, result, colors)
     else:
@@ -428,6 +440,8 @@ def log_comparison(rec, result: PairResult, colors: Colors) -> None:
         labels.append(title + " (log scale)")
         y += head
         for r, v, length in zip(result.estimators, values, bar_lengths(values, width)):
+            if r.name == L.GT and v == 0:
+                continue  # the ground truth's own pose error and NSGD: zero by definition
             bars.append([(0.0, y), (max(length, 0.5), y)])
             bar_colors.append(_rgb(colors[r.name]))
             bar_radii.append(pitch / 3)
