@@ -10,7 +10,7 @@ import json
 import cv2
 import numpy as np
 import pytest
-from browser import inspect_recording
+from browser import eval_run as run_eval, inspect_recording
 from cli_util import run_fviz
 
 from fviz.record import layout as L
@@ -28,11 +28,7 @@ def inspected(kitti_root, tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def eval_run(kitti_root, tmp_path_factory):
-    out = tmp_path_factory.mktemp("main-eval") / "run"
-    r = run_fviz("eval", "--kitti-root", kitti_root, "--sequence", "00", "--pair", "temporal", "--frames", "0:7",
-                 *[a for e in ESTIMATORS for a in ("-e", e)], "--workers", "1", "--out-dir", out, timeout=600)
-    assert r.returncode == 0, r.stderr
-    return out
+    return run_eval(kitti_root, tmp_path_factory.mktemp("main-eval") / "run", "0:7", ESTIMATORS)
 
 
 def rows(path, entity: str, column: str, timeline: str | None = None) -> list:

@@ -160,8 +160,8 @@ COMPARED_METRICS = (
     ("trans_err_deg", "translation error (deg)"),
     ("nsgd", "NSGD (FM-Bench)"),
 )
-BAR_WIDTH, BAR_PITCH, BAR_HEAD, BAR_LABEL_X = 300.0, 26.0, 40.0, 450.0
-CDF_H = 90.0  # the residual CDF below the bars
+BAR_WIDTH, BAR_PITCH, BAR_HEAD, BAR_LABEL_X = 300.0, 28.0, 34.0, 450.0
+CDF_H = 70.0  # the residual CDF below the bars
 CHART_BACKGROUND = (32, 32, 36)  # charts and plots: dark, so that the ground truth's white shows in any theme
 
 

@@ -211,7 +211,10 @@ def _glyph(k: int, at: np.ndarray, name: str) -> list[np.ndarray]:
     return [at + GLYPH_PX * np.asarray(s, float) for s in _GLYPHS[k % len(_GLYPHS)]]
 
 
-def _log_epipoles(rec, path: str, marks: list, clear: bool, extra=()) -> None:
+LABEL_ON_PHOTO = (0, 0, 0)  # Rerun writes a label in its entity's colour on a light box over the photos: black reads
+
+
+def _log_epipoles(rec, path: str, marks: list, clear: bool, size: tuple[int, int], extra=()) -> None:
     """The overview's epipoles: per F a glyph of its own in its colour over a black halo, drawn above the
     lines, and its name in a label stacked above the epipole (one row per F, so that epipoles a few pixels
     apart keep both names) joined to it by a thin line. ``marks``: [(name, colour, where, hover label, arrows)];
@@ -228,6 +231,7 @@ def _log_epipoles(rec, path: str, marks: list, clear: bool, extra=()) -> None:
         labels += [label] * len(glyph)
         arrows += arrow
         tag = at + (0.0, -2.2 * GLYPH_PX - 26.0 * k)
+        tag[0] = min(max(tag[0], 60.0), size[0] - 60.0)  # names of epipoles on the border stay on screen
         strips.append(np.stack([at + (0.0, -1.3 * GLYPH_PX), tag]))
         colors.append(color)
         radii.append(0.5)
@@ -239,7 +243,7 @@ def _log_epipoles(rec, path: str, marks: list, clear: bool, extra=()) -> None:
     rec.log(path, rr.LineStrips2D(halo + strips, colors=[(0, 0, 0)] * len(halo) + colors,
                                   radii=[3.2] * len(halo) + radii, labels=[""] * len(halo) + labels, show_labels=False,
                                   draw_order=40.0),
-            rr.Points2D(points, radii=0.1, colors=[(255, 255, 255)], labels=names, show_labels=True, draw_order=41.0),
+            rr.Points2D(points, radii=0.1, colors=[LABEL_ON_PHOTO], labels=names, show_labels=True, draw_order=41.0),
             *([rr.Arrows2D(origins=[a[0] for a in arrows] or np.zeros((0, 2)), vectors=[a[1] for a in arrows] or np.zeros((0, 2)),
                            colors=[a[2] for a in arrows] or None, radii=2.0)] if arrows or clear else []))
 
@@ -256,7 +260,7 @@ def estimator_caption(r, result: PairResult) -> str:
 def caption_strip(size_b: tuple[int, int], r, result: PairResult) -> tuple:
     """The estimator's numbers below image b, as a labelled invisible strip: (strip, colour, radius, label)."""
     at = np.array([size_b[0] / 2, size_b[1] + 18.0])
-    return np.stack([at, at]), _rgb((70, 70, 76)), 0.0, estimator_caption(r, result)
+    return np.stack([at, at]), _rgb(LABEL_ON_PHOTO), 0.0, estimator_caption(r, result)
 
 
 SCALE_STEP = 28.0  # one residual bin of the scale below image b
@@ -387,7 +391,7 @@ def log_pair(rec, index: int, pair: Pair, result: PairResult, n_lines: int = 30,
                        show_labels=r.name != L.GT)
             marks[v].append((r.name, color, cross.mean(axis=(0, 1)), label, arrows))
     for v in L.VIEWS:
-        _log_epipoles(rec, L.epipoles(v), marks[v], clear=not single_pair, extra=scale_ends(sizes[v]) if v == "b" else ())
+        _log_epipoles(rec, L.epipoles(v), marks[v], not single_pair, sizes[v], scale_ends(sizes[v]) if v == "b" else ())
     if single_pair:
         log_comparison(rec, result, colors)
     else:
