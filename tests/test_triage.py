@@ -96,7 +96,7 @@ def test_gt_suspect_is_the_pairs_whatever_by_and_inspect_says_the_same(temporal,
     command triage.md gives) reports it in its JSON notes and at the top of the recording's summary."""
     import shlex
 
-    from fviz.record.reader import text
+    from fviz.record.reader import _blueprint_fields, open_rrd, text
     from fviz.run import read_config
     from fviz.triage import inspect_command
 
@@ -118,6 +118,8 @@ def test_gt_suspect_is_the_pairs_whatever_by_and_inspect_says_the_same(temporal,
         said = [n for n in notes if n.startswith("gt-suspect: ")]
         assert bool(said) == verdicts[0][rec["key"]], (rec["key"], notes)
         assert ("ground truth suspect" in text(rrd, L.SUMMARY)[0]) == bool(said)
+        titles = [v["display_name"][0] for v in _blueprint_fields(open_rrd(rrd)).values() if "display_name" in v]
+        assert any(t.startswith("GROUND TRUTH SUSPECT") for t in titles) == bool(said)  # the overview's title
         assert all(f"note: {n}" in r.stderr for n in said)
 
 
@@ -156,6 +158,13 @@ def test_triage_recording_steps_through_the_worst_pairs_first(temporal):
     assert sorted(info) == list(range(5)) and images == set(range(5))
     assert info[0] == (ranked[0].index, ranked[0].key)
     assert all(info[r.rank] == (r.index, r.key) for r in ranked)
+    # it opens on the rank timeline, and the banner names the metric, the estimator and the value, rank by rank
+    from fviz.record.reader import _blueprint_fields, column, open_rrd
+
+    assert _blueprint_fields(open_rrd(out / TRIAGE_RRD))["time_panel"]["timeline"] == ["rank"]
+
+    banners = column(out / TRIAGE_RRD, L.TRIAGE_TAGS, "TextDocument:text")
+    assert [b[0].split("\n")[0].split("**")[1] for b in banners] == [f"rank {r.rank}: sed_median of magsac {r.value:.3g} px" for r in ranked]
 
 
 def test_oracle_mean_is_exact_on_raw_stereo_pairs_and_flagged(kitti_root, raw_drive, tmp_path):

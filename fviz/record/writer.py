@@ -230,7 +230,7 @@ def _log_epipoles(rec, path: str, marks: list, clear: bool, size: tuple[int, int
         radii += [1.6] * len(glyph)
         labels += [label] * len(glyph)
         arrows += arrow
-        tag = at + (0.0, -2.2 * GLYPH_PX - 26.0 * k)
+        tag = at + (0.0, -2.8 * GLYPH_PX - 26.0 * k)
         tag[0] = min(max(tag[0], 60.0), size[0] - 60.0)  # names of epipoles on the border stay on screen
         strips.append(np.stack([at + (0.0, -1.3 * GLYPH_PX), tag]))
         colors.append(color)
