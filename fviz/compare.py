@@ -4,7 +4,11 @@ Sides come from the metrics.csv of ``fviz eval`` runs: two estimators of one run
 of two runs (pairs matched by name). A side *fails* on a pair when the pair or the estimator errored,
 the metric is NaN, or the metric is worse than ``fail_threshold`` (above it; below it for metrics
 where higher is better). Wins and losses count the pairs where both sides have a value; a difference
-within ``tie`` is a tie.
+within the tolerance (``tie`` absolute, ``tie_rel`` relative to the larger of the two values) is a tie.
+
+Beside the counts: the per-pair differences (a - b) and Wilcoxon's signed-rank test of them (two-sided;
+exact over the 2^n sign flips of the ranks for n <= EXACT_MAX_N, ties averaged, else the normal approximation
+with tie and continuity corrections), on the pairs where both sides have a value.
 """
 
 from __future__ import annotations
@@ -20,6 +24,8 @@ from fviz.triage import HIGHER_IS_BETTER
 
 COMPARE_FILE = "compare.md"
 FAIL_THRESHOLD = 2.0  # px: sed_median above this is a failure (the paper's evaluation threshold)
+TIE_REL = 0.05  # default: values within 5 % of the larger one are a tie (a 0.21 vs 0.2101 px "win" says nothing)
+EXACT_MAX_N = 50  # Wilcoxon: exact distribution up to this many non-zero differences
 
 
 @dataclass(frozen=True)
@@ -46,6 +52,16 @@ class Comparison:
     both_fail: list[str] = field(default_factory=list)
     missing: list[str] = field(default_factory=list)  # pairs of one side only
     values: dict[str, tuple[float, float]] = field(default_factory=dict)
+    tie: float = 0.0
+    tie_rel: float = TIE_REL
+
+    def differences(self) -> list[tuple[str, float, float, float]]:
+        """(pair, a, b, a - b) where both sides have a value, largest |a - b| first."""
+        rows = [(n, x, y, x - y) for n, (x, y) in self.values.items() if math.isfinite(x) and math.isfinite(y)]
+        return sorted(rows, key=lambda r: (-abs(r[3]), r[0]))
+
+    def wilcoxon(self) -> "Wilcoxon":
+        return wilcoxon_signed_rank([d for *_, d in self.differences()])
 
     @property
     def names(self) -> tuple[str, str]:
@@ -94,14 +110,19 @@ def _fails(v: float, error: str, threshold: float, higher_better: bool) -> bool:
     return bool(error) or not math.isfinite(v) or (v < threshold if higher_better else v > threshold)
 
 
+def is_tie(x: float, y: float, tie: float = 0.0, tie_rel: float = TIE_REL) -> bool:
+    """Whether two values differ by no more than ``tie`` or ``tie_rel`` of the larger magnitude."""
+    return abs(x - y) <= max(tie, tie_rel * max(abs(x), abs(y)))
+
+
 def compare(a: Side, b: Side, metric: str = "sed_median", fail_threshold: float = FAIL_THRESHOLD,
-            tie: float = 0.0) -> Comparison:
+            tie: float = 0.0, tie_rel: float = TIE_REL) -> Comparison:
     """Pair-by-pair comparison of side a against side b."""
     if a.estimator == b.estimator and Path(a.run).resolve() == Path(b.run).resolve():
         raise FvizError(f"compare: a and b are both {a.estimator} of {a.run}; compare two estimators or two runs")
     va, vb = read_side(a, metric), read_side(b, metric)
     hb = metric in HIGHER_IS_BETTER
-    c = Comparison(a, b, metric, fail_threshold)
+    c = Comparison(a, b, metric, fail_threshold, tie=tie, tie_rel=tie_rel)
     c.missing = sorted(set(va) ^ set(vb))
     for name in [n for n in va if n in vb]:
         (x, ea), (y, eb) = va[name], vb[name]
@@ -115,8 +136,68 @@ def compare(a: Side, b: Side, metric: str = "sed_median", fail_threshold: float 
             c.only_b_fails.append(name)
         if math.isfinite(x) and math.isfinite(y) and not ea and not eb:
             d = (y - x) if not hb else (x - y)  # > 0: a better
-            (c.wins if d > tie else c.losses if d < -tie else c.ties).append(name)
+            (c.ties if is_tie(x, y, tie, tie_rel) else c.wins if d > 0 else c.losses).append(name)
     return c
+
+
+@dataclass(frozen=True)
+class Wilcoxon:
+    """Wilcoxon's signed-rank test of paired differences: ``n`` non-zero differences (zeros are dropped), the
+    rank sums of the positive and negative ones, the two-sided p-value and how it was computed
+    (``exact``, ``normal``, or ``none`` when no difference is non-zero: p is NaN)."""
+
+    n: int
+    w_plus: float
+    w_minus: float
+    p: float
+    method: str
+
+
+def signed_ranks(d) -> "tuple[np.ndarray, np.ndarray]":
+    """(ranks of |d| with ties averaged, signs) of the non-zero differences. (N,) -> (n,), (n,)."""
+    import numpy as np
+
+    d = np.asarray(d, np.float64)
+    d = d[np.isfinite(d) & (d != 0)]
+    order = np.argsort(np.abs(d), kind="stable")
+    a = np.abs(d)[order]
+    ranks = np.empty(len(d))
+    i = 0
+    while i < len(a):  # runs of equal |d| share their mean rank
+        j = i
+        while j + 1 < len(a) and a[j + 1] == a[i]:
+            j += 1
+        ranks[order[i: j + 1]] = (i + j) / 2 + 1
+        i = j + 1
+    return ranks, np.sign(d)
+
+
+def wilcoxon_signed_rank(d) -> Wilcoxon:
+    """Two-sided Wilcoxon signed-rank test of the differences ``d`` (N,): exact (every sign flip of the
+    ranks, ties averaged: the doubled ranks are integers) up to EXACT_MAX_N non-zero differences, above
+    that the normal approximation with the tie correction and a continuity correction."""
+    import numpy as np
+
+    ranks, signs = signed_ranks(d)
+    n = len(ranks)
+    w_plus, w_minus = float(ranks[signs > 0].sum()), float(ranks[signs < 0].sum())
+    if n == 0:
+        return Wilcoxon(0, 0.0, 0.0, math.nan, "none")
+    if n <= EXACT_MAX_N:
+        doubled = np.round(2 * ranks).astype(int)
+        counts = np.zeros(int(doubled.sum()) + 1)  # counts[s]: sign assignments whose doubled W+ is s
+        counts[0] = 1.0
+        for r in doubled:
+            counts[r:] += counts[:-r].copy()  # r >= 2: each match either adds its rank or not
+        prob = counts / counts.sum()
+        w = int(round(2 * w_plus))
+        p = 2 * min(prob[: w + 1].sum(), prob[w:].sum())
+        return Wilcoxon(n, w_plus, w_minus, float(min(1.0, p)), "exact")
+    _, tied = np.unique(ranks, return_counts=True)
+    mean = n * (n + 1) / 4
+    sd = math.sqrt(n * (n + 1) * (2 * n + 1) / 24 - float((tied**3 - tied).sum()) / 48)
+    z = (abs(w_plus - mean) - 0.5) / sd if sd > 0 else 0.0
+    return Wilcoxon(n, w_plus, w_minus, float(min(1.0, math.erfc(max(z, 0.0) / math.sqrt(2)))), "normal")
 
 
 def _median_diff(c: Comparison) -> float:
@@ -138,8 +219,20 @@ def summary_rows(c: Comparison) -> list[tuple[str, str]]:
         (f"only {nb} fails", str(len(c.only_b_fails))),
         ("both fail", str(len(c.both_fail))),
         (f"median {c.metric} a - b", f"{_median_diff(c):.4g}"),
+        ("Wilcoxon signed-rank p (two-sided)", _p_text(c.wilcoxon())),
         ("pairs in one run only", str(len(c.missing))),
     ]
+
+
+def _p_text(w: Wilcoxon) -> str:
+    if w.method == "none":
+        return "n/a (no pair differs)"
+    return f"{w.p:.3g} ({w.method}, n = {w.n}, W+ = {w.w_plus:g}, W- = {w.w_minus:g})"
+
+
+def _tie_text(c: Comparison) -> str:
+    parts = ([f"{c.tie:g}"] if c.tie > 0 else []) + ([f"{c.tie_rel:.0%} of the larger value"] if c.tie_rel > 0 else [])
+    return "differences within " + " or ".join(parts) + " are ties" if parts else "no tolerance: any difference counts"
 
 
 def _what(c: Comparison) -> str:
@@ -156,7 +249,9 @@ def compare_markdown(c: Comparison) -> str:
         _what(c),
         "",
         f"A side fails on a pair when it errors, has no value, or its {c.metric} is {worse} {c.fail_threshold:g}. "
-        "Wins and losses count pairs where both have a value.",
+        f"Wins and losses count pairs where both have a value; {_tie_text(c)} (`--tie`, `--tie-rel`). Wilcoxon's "
+        "signed-rank test asks whether the per-pair differences a - b are centred on zero (small p: one side is "
+        "better across the pairs, not just on a few).",
         "",
         "| | count |",
         "|---|---|",
@@ -165,7 +260,15 @@ def compare_markdown(c: Comparison) -> str:
     for title, names in ((f"Only {na} fails", c.only_a_fails), (f"Only {nb} fails", c.only_b_fails)):
         lines += ["", f"## {title}", "", "| pair | a | b |", "|---|---|---|"]
         lines += [f"| `{n}` | {_v(c, n, 0)} | {_v(c, n, 1)} |" for n in names] or ["| (none) | | |"]
+    better = "larger" if c.metric in HIGHER_IS_BETTER else "smaller"
+    lines += ["", "## Per pair", "", f"{c.metric} of a and b and their difference, largest |a - b| first ({better} is better).",
+              "", "| pair | a | b | a - b | |", "|---|--:|--:|--:|---|"]
+    lines += [f"| `{n}` | {x:.4g} | {y:.4g} | {d:+.4g} | {_verdict(c, n, na, nb)} |" for n, x, y, d in c.differences()]
     return "\n".join(lines) + "\n"
+
+
+def _verdict(c: Comparison, name: str, na: str, nb: str) -> str:
+    return "tie" if name in c.ties else f"{na} better" if name in c.wins else f"{nb} better" if name in c.losses else ""
 
 
 def _v(c: Comparison, name: str, i: int) -> str:

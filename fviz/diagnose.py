@@ -2,6 +2,10 @@
 results.jsonl (``diagnostics``): fviz.run imports this module, fviz.triage reads what it wrote.
 
 Thresholds live here, beside the computations that use them; fviz.triage documents the tags.
+
+:func:`gt_suspect` is a property of the pair, judged once from the estimators that fit the matches (not the
+baselines, not the networks, which read only the images), whichever estimator triage ranks by: inspect
+(stdout, JSON ``notes``, the recording) and triage (the tag) call it on the same evidence.
 """
 
 from __future__ import annotations
@@ -10,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from fviz.evaluate import GT_NAME
+from fviz.evaluate import EVAL_THRESHOLD_PX, GT_NAME
 
 HOMOGRAPHY_PX = 2.0
 ROTATION_PX = 2.0
@@ -20,6 +24,15 @@ FOCAL_PROBE_PX = 0.5  # focal_observable: noise added to exact matches, draws, m
 FOCAL_PROBE_RUNS = 3
 FOCAL_PROBE_POINTS = 300
 FOCAL_STABLE = 0.25  # and the largest relative focal error that still counts as determined
+# gt-suspect (see gt_suspect) and the conditioning of a pair (shared with the tags of fviz.triage)
+GT_SUSPECT_INLIER_RATIO = 0.5  # a consensus: at least this share of the matches are an estimator's inliers
+GT_AGREE_MIN = 0.5  # ... of which fewer than this within the evaluation threshold of F_gt: suspect
+GT_SUSPECT_FIT_PX = 0.5  # a tight fit: median SED below this
+GT_SUSPECT_DIRECTION_DEG = 6.0
+GT_SUSPECT_ROTATION_DEG = 1.0
+PLANAR_FRACTION = 0.8
+SMALL_BASELINE_M = 0.1
+ROTATION_FRACTION = 0.8
 
 
 def homography_fraction(x_a: np.ndarray, x_b: np.ndarray) -> float:
@@ -135,3 +148,83 @@ def diagnose(pair, result) -> dict[str, Any]:
         "estimators": {r.name: _estimator_evidence(pair, r, m, gt_sed, result.eval_threshold_px)
                        for r in result.estimators if r.name != GT_NAME and not r.error},
     }
+
+
+def _fits_matches(name: str) -> bool:
+    """Estimators whose F is fitted to the matches: not the baselines, not the networks (images only)."""
+    from fviz.estimators.registry import is_baseline
+
+    return name != GT_NAME and not is_baseline(name) and name != "deep" and not name.startswith("deep-")
+
+
+def _num(v) -> float:
+    return float("nan") if v is None else float(v)
+
+
+def ill_conditioned(diag: dict[str, Any], ev: dict[str, Any]) -> str:
+    """Why the epipolar geometry of the pair is poorly determined ("" when it is not): a small baseline,
+    the infinite homography explaining most matches, or one plane holding most of the inliers ``ev``."""
+    rot, hom = _num(diag.get("rotation_fraction")), _num(ev.get("homography_fraction"))
+    if _num(diag.get("baseline_m")) < SMALL_BASELINE_M:
+        return f"small baseline (|t| = {_num(diag.get('baseline_m')):.3f} m)"
+    if rot >= ROTATION_FRACTION:
+        return f"a pure rotation explains {rot:.0%} of the matches"
+    if hom >= PLANAR_FRACTION:
+        return f"one homography explains {hom:.0%} of the inliers"
+    return ""
+
+
+def gt_suspect(diag: dict[str, Any] | None, estimators: list[dict[str, Any]]) -> dict[str, str] | None:
+    """Whether the pair's ground truth looks wrong: {"why": ..., "reference": the estimator to trust instead}
+    or None. ``diag``: :func:`diagnose`'s evidence; ``estimators``: the pair's rows ({name, error, metrics},
+    as in results.jsonl and ``inspect --json``).
+
+    From the estimators that fit the matches and find a consensus (inlier ratio >= GT_SUSPECT_INLIER_RATIO):
+
+    - the largest consensus's inliers sit off F_gt (fewer than GT_AGREE_MIN of them within the evaluation
+      threshold of its lines, or their median distance above it): measured on the inliers' residuals, so it
+      holds on any pair, planar and small-baseline ones included;
+    - or, on a well-conditioned pair only (:func:`ill_conditioned` says nothing), every tight fit (median SED <
+      GT_SUSPECT_FIT_PX) puts the epipole more than GT_SUSPECT_DIRECTION_DEG or the rotation more than
+      GT_SUSPECT_ROTATION_DEG from the ground truth's: forward motion, where a pose 13 deg off still leaves
+      most matches within 1-2 px of its lines. Where the epipole is poorly determined (small baseline, one
+      plane) a 6 deg disagreement says nothing, and that pair is judged by the first test alone."""
+    if not diag:
+        return None
+    evidence = diag.get("estimators", {})
+    rows = [e for e in estimators if not e.get("error") and _fits_matches(e["name"]) and e["name"] in evidence]
+    m = {e["name"]: {k: _num(e["metrics"].get(k)) for k in ("inlier_ratio", "n_inliers", "sed_median",
+                                                                "epipole_err_deg", "rot_err_deg")} for e in rows}
+    consensus = [n for n in m if m[n]["inlier_ratio"] >= GT_SUSPECT_INLIER_RATIO]
+    if not consensus:
+        return None
+    ref = max(consensus, key=lambda n: (m[n]["n_inliers"], -m[n]["sed_median"]))
+    ev = evidence[ref]
+    agree, sed = _num(ev.get("gt_agree")), _num(ev.get("gt_sed_median_inliers"))
+    if agree < GT_AGREE_MIN or sed > EVAL_THRESHOLD_PX:
+        return {"reference": ref, "why": f"{ref}'s inliers ({m[ref]['inlier_ratio']:.0%} of the matches, the "
+                f"largest consensus) sit off F_gt: {agree:.0%} of them within {EVAL_THRESHOLD_PX:g} px of its lines "
+                f"(median {sed:.2f} px)"}
+    tight = [n for n in consensus if m[n]["sed_median"] < GT_SUSPECT_FIT_PX]
+    if not tight or ill_conditioned(diag, ev):
+        return None
+    if all(m[n]["epipole_err_deg"] > GT_SUSPECT_DIRECTION_DEG or m[n]["rot_err_deg"] > GT_SUSPECT_ROTATION_DEG for n in tight):
+        best = max(tight, key=lambda n: m[n]["n_inliers"])
+        return {"reference": best, "why": "every tight fit disagrees with the ground truth: " + "; ".join(
+            f"{n} epipole {m[n]['epipole_err_deg']:.1f} deg, rotation {m[n]['rot_err_deg']:.2f} deg off" for n in tight)}
+    return None
+
+
+GT_SUSPECT_NOTE = "gt-suspect: "  # how the verdict starts in a pair's notes (inspect: stderr, JSON, summary)
+
+
+def gt_suspect_note(pair, result) -> str | None:
+    """The verdict of :func:`gt_suspect` on one evaluated pair as a note ("gt-suspect: why; reference: ..."),
+    None when the ground truth looks right (or the pair has too few matches to judge)."""
+    if not pair.has_gt or result.matches is None or len(result.matches) == 0 or result.eval_mask is None:
+        return None
+    suspect = gt_suspect(diagnose(pair, result), result.to_dict()["estimators"])
+    if suspect is None:
+        return None
+    return (f"{GT_SUSPECT_NOTE}{suspect['why']}; the ground truth's errors here are not the estimators': compare "
+            f"with {suspect['reference']}'s tab (reference: {suspect['reference']})")

@@ -21,18 +21,19 @@ Pair tags (thresholds are the constants below and in :mod:`fviz.diagnose`):
 - ``error``: the pair failed as a whole (missing image, fewer than MIN_MATCHES matches) or an estimator raised;
 - ``few-matches``: fewer than FEW_MATCHES matches;
 - ``low-inliers``: the ranked estimator's inlier ratio is below LOW_INLIER_RATIO;
-- ``gt-suspect``: the ranked estimator finds many inliers (ratio >= GT_SUSPECT_INLIER_RATIO) but they
-  disagree with the ground truth: fewer than GT_AGREE_MIN of them within the evaluation threshold of
-  F_gt, or their median distance to F_gt's epipolar lines above GT_SUSPECT_SED_PX; or every estimator of
-  the run that fits the matches tightly (inlier ratio >= GT_SUSPECT_INLIER_RATIO, median SED <
-  GT_SUSPECT_FIT_PX; baselines excluded), and there is at least one, puts its epipole more than
+- ``gt-suspect``: a property of the pair, whatever estimator ranks it (:func:`fviz.diagnose.gt_suspect`, the
+  same verdict ``inspect`` prints): the largest consensus of the estimators fitting the matches (inlier ratio
+  >= GT_SUSPECT_INLIER_RATIO) has fewer than GT_AGREE_MIN of its inliers within the evaluation threshold of
+  F_gt, or their median distance to F_gt's lines above it; or, on a well-conditioned pair (not small-baseline,
+  not planar), every tight fit (median SED < GT_SUSPECT_FIT_PX) puts its epipole more than
   GT_SUSPECT_DIRECTION_DEG or its rotation more than GT_SUSPECT_ROTATION_DEG away from the ground truth's
   -> suspected ground-truth (pose or calibration) error rather than an estimation failure. The second
   test is the one that holds on forward motion, where a pose 13 deg off in translation direction still
   leaves most matches within 1-2 px of its epipolar lines (sequence 00 with its trajectory turned by 13
   deg: the robust estimators' epipoles are then 9-18 deg off, against 1-5 deg with the official poses).
   Asking all tight fits to disagree keeps one estimator's wrong answer (a MAGSAC F 90 deg off that fits a
-  dominant plane) from accusing the ground truth;
+  dominant plane) from accusing the ground truth; where the epipole is poorly determined (small baseline,
+  a dominant plane) only the inliers' residuals to F_gt count. The reason names the estimator to trust instead;
 - ``planar``: one homography (RANSAC, HOMOGRAPHY_PX) explains at least PLANAR_FRACTION of the ranked
   estimator's inliers: a near-degenerate (planar) configuration for F;
 - ``small-baseline``: the ground-truth translation is below SMALL_BASELINE_M, or the infinite
@@ -67,23 +68,17 @@ from typing import Any
 import numpy as np
 
 from fviz.atomic import write_text
-from fviz.diagnose import HOMOGRAPHY_PX, ROTATION_PX, STATIC_PX
+from fviz.diagnose import (GT_AGREE_MIN, GT_SUSPECT_DIRECTION_DEG, GT_SUSPECT_FIT_PX, GT_SUSPECT_INLIER_RATIO,
+                            GT_SUSPECT_ROTATION_DEG, HOMOGRAPHY_PX, PLANAR_FRACTION, ROTATION_FRACTION, ROTATION_PX,
+                            SMALL_BASELINE_M, STATIC_PX, gt_suspect)
 from fviz.errors import FvizError
-from fviz.estimators.registry import AHEAD, is_baseline, is_oracle, is_run_baseline
+from fviz.estimators.registry import AHEAD, is_oracle, is_run_baseline
 from fviz.evaluate import EVAL_THRESHOLD_PX, GT_NAME
 from fviz.record import layout as L
 
 FEW_MATCHES = 50
 LOW_INLIER_RATIO = 0.5
-GT_SUSPECT_INLIER_RATIO = 0.5
-GT_AGREE_MIN = 0.5
 GT_SUSPECT_SED_PX = EVAL_THRESHOLD_PX
-GT_SUSPECT_FIT_PX = 0.5
-GT_SUSPECT_DIRECTION_DEG = 6.0
-GT_SUSPECT_ROTATION_DEG = 1.0
-PLANAR_FRACTION = 0.8
-SMALL_BASELINE_M = 0.1
-ROTATION_FRACTION = 0.8
 DEGENERATE_FRACTION = 0.9
 IGNORES_FRACTION = 0.1
 IGNORES_MIN_PAIRS = 5
@@ -103,7 +98,7 @@ NOT_RANKING = {"f_dist": "unconditioned ||F - F_gt|| of pixel-coordinate F misra
                          "rank by sed_median, pose_err_deg or nsgd"}
 TRIAGE_FILE = "triage.md"
 TRIAGE_RRD = "triage.rrd"
-RANK_TIMELINE = "rank"
+RANK_TIMELINE = L.RANK_TIMELINE
 TAGS_ENTITY = L.TRIAGE_TAGS
 
 
@@ -132,14 +127,9 @@ def tag_pair(rec: dict[str, Any], by: str) -> list[tuple[str, str]]:
     ratio, ev = _nan_if_none(metrics.get("inlier_ratio")), diag["estimators"].get(by, {})
     if ratio < LOW_INLIER_RATIO:
         out.append(("low-inliers", f"{by} inlier ratio {ratio:.2f} < {LOW_INLIER_RATIO}"))
-    agree, sed = _nan_if_none(ev.get("gt_agree")), _nan_if_none(ev.get("gt_sed_median_inliers"))
-    tight = _tight_fits(res)
-    if ratio >= GT_SUSPECT_INLIER_RATIO and (agree < GT_AGREE_MIN or sed > GT_SUSPECT_SED_PX):
-        out.append(("gt-suspect", f"{by} inlier ratio {ratio:.2f} but only {agree:.0%} of its inliers within "
-                    f"{EVAL_THRESHOLD_PX:g} px of F_gt (median {sed:.2f} px)"))
-    elif tight and all(d > GT_SUSPECT_DIRECTION_DEG or r > GT_SUSPECT_ROTATION_DEG for _, d, r in tight):
-        out.append(("gt-suspect", "every tight fit disagrees with the ground truth: " + "; ".join(
-            f"{n} epipole {d:.1f} deg, rotation {r:.2f} deg off" for n, d, r in tight)))
+    suspect = gt_suspect(diag, res.get("estimators", []))
+    if suspect:
+        out.append(("gt-suspect", f"{suspect['why']}; reference: {suspect['reference']}"))
     hom = _nan_if_none(ev.get("homography_fraction"))
     if hom >= PLANAR_FRACTION:
         out.append(("planar", f"a homography explains {hom:.0%} of {by}'s inliers (>= {PLANAR_FRACTION:.0%})"))
@@ -186,18 +176,6 @@ def two_view_tags(rec: dict[str, Any], by: str) -> list[tuple[str, str]]:
         if not all(1 / FOCAL_OFF <= r <= FOCAL_OFF for r in ratio):  # NaN: imaginary
             out.append(("focal-implausible", f"{by}'s F gives focals {f[0]:.0f} / {f[1]:.0f} px (Bougnoux; nan: "
                         f"imaginary) against K's {K[0][0, 0]:.0f} / {K[1][0, 0]:.0f} px"))
-    return out
-
-
-def _tight_fits(res: dict[str, Any]) -> list[tuple[str, float, float]]:
-    """(name, epipole error, rotation error) of the estimators that fit the matches tightly (see gt-suspect)."""
-    out = []
-    for e in res.get("estimators", []):
-        if e["name"] == GT_NAME or e["error"] or is_baseline(e["name"]):
-            continue
-        m = {k: _nan_if_none(e["metrics"].get(k)) for k in ("inlier_ratio", "sed_median", "epipole_err_deg", "rot_err_deg")}
-        if m["inlier_ratio"] >= GT_SUSPECT_INLIER_RATIO and m["sed_median"] < GT_SUSPECT_FIT_PX:
-            out.append((e["name"], m["epipole_err_deg"], m["rot_err_deg"]))
     return out
 
 
@@ -428,9 +406,10 @@ def triage_markdown(config, ranked: list[Ranked], top: int, by: str, metric: str
         f"where `{by}` failed come first); `--by NAME` ranks by another estimator.",
         "",
         "Tags over all pairs: " + ", ".join(f"`{t}` {counts[t]}" for t in TAGS) + ".",
-        f"Thresholds: few-matches < {FEW_MATCHES}; low-inliers ratio < {LOW_INLIER_RATIO}; gt-suspect: ratio >= "
-        f"{GT_SUSPECT_INLIER_RATIO} and < {GT_AGREE_MIN:.0%} of the inliers within {EVAL_THRESHOLD_PX:g} px of F_gt or their "
-        f"median > {GT_SUSPECT_SED_PX:g} px, or every estimator fitting to a median SED < {GT_SUSPECT_FIT_PX:g} px has "
+        f"Thresholds: few-matches < {FEW_MATCHES}; low-inliers ratio < {LOW_INLIER_RATIO}; gt-suspect (of the pair, "
+        f"whatever `--by`): the largest consensus (ratio >= {GT_SUSPECT_INLIER_RATIO}) has < {GT_AGREE_MIN:.0%} of its "
+        f"inliers within {EVAL_THRESHOLD_PX:g} px of F_gt or their median > {GT_SUSPECT_SED_PX:g} px, or, on a pair neither "
+        f"small-baseline nor planar, every estimator fitting to a median SED < {GT_SUSPECT_FIT_PX:g} px has "
         f"its epipole > {GT_SUSPECT_DIRECTION_DEG:g} deg or its rotation > {GT_SUSPECT_ROTATION_DEG:g} deg off; planar: a homography ({HOMOGRAPHY_PX:g} px) explains >= {PLANAR_FRACTION:.0%} "
         f"of the inliers; small-baseline: |t| < {SMALL_BASELINE_M} m or K_b R K_a^-1 explains >= {ROTATION_FRACTION:.0%} "
         f"of the matches within {ROTATION_PX:g} px; degenerate: >= {DEGENERATE_FRACTION:.0%} of the matches move < "
@@ -457,32 +436,43 @@ def triage_markdown(config, ranked: list[Ranked], top: int, by: str, metric: str
     return "\n".join(lines) + "\n"
 
 
-def write_triage_recording(path: Path, config, out_dir: Path, shown: list[Ranked], records: dict[int, dict]) -> Path:
+def rank_banner(r: Ranked, by: str, metric: str) -> str:
+    """The head of a rank in triage.rrd: "rank 0: sed_median of 8point 3.34 px", then its tags."""
+    value = "failed" if r.failed else f"{r.value:.3g}{(' ' + L.metric_unit(metric)) if L.metric_unit(metric) else ''}"
+    return "\n".join([f"**rank {r.rank}: {metric} of {by} {value}** (`{r.key}`, pair #{r.index}; ArrowRight: next "
+                      "worse-ranked pair)", ""] + [f"- **{t}**: {why}" for t, why in r.tags])
+
+
+def write_triage_recording(path: Path, config, out_dir: Path, shown: list[Ranked], records: dict[int, dict],
+                           by: str = "", metric: str = "sed_median") -> Path:
     """triage.rrd: the ``rank`` timeline steps through the worst pairs first, each with inspect's full
-    payload (the pair is evaluated again: estimators are seeded, so the values are the run's)."""
+    payload (the pair is evaluated again: estimators are seeded, so the values are the run's); it opens on
+    ``rank`` and its series are plotted per rank."""
     import rerun as rr
 
     from fviz.data.pair import PairId
-    from fviz.record.writer import RecordingWriter, log_pair, log_static
+    from fviz.diagnose import gt_suspect_note
+    from fviz.record.writer import RecordingWriter, log_pair, log_static, series_ranges_of
     from fviz.run import PairEvaluator, log_summary_pair, result_from_record
 
     evaluator = PairEvaluator(config, out_dir)
     size = next(((tuple(rec["result"]["pair"]["size_a"]), tuple(rec["result"]["pair"]["size_b"]))
                  for rec in records.values() if rec.get("result")), ((1242, 375), (1242, 375)))
     names = config.series_names()
-    with RecordingWriter(path, "fviz-triage", L.blueprint(names, size, single_pair=False, head=True)) as w:
+    ranges = series_ranges_of(result_from_record(records[r.index], config) for r in shown)
+    with RecordingWriter(path, "fviz-triage", L.blueprint(names, size, single_pair=False, head=True, ranges=ranges)) as w:
         log_static(w.rec, names, series=True)
         for r in shown:
             rec = records[r.index]
-            w.rec.set_time(RANK_TIMELINE, sequence=r.rank)
+            w.rec.set_time(L.RANK_TIMELINE, sequence=r.rank)
             try:
                 pair, result = evaluator.evaluate(PairId(**{k: v for k, v in r.ref.items() if k != "name"}))
+                if (note := gt_suspect_note(pair, result)) is not None:
+                    result.notes.insert(0, note)
                 log_pair(w.rec, r.index, pair, result, single_pair=False)
             except Exception:  # the pair failed in eval too: its record says why
                 log_summary_pair(w.rec, r.index, rec, result_from_record(rec, config))
-            text = "\n".join([f"**rank {r.rank}** `{r.key}`: {r.value:.4g}" if not r.failed else f"**rank {r.rank}** `{r.key}`: failed",
-                              ""] + [f"- **{t}**: {why}" for t, why in r.tags])
-            w.rec.log(TAGS_ENTITY, rr.TextDocument(text, media_type="text/markdown"))
+            w.rec.log(TAGS_ENTITY, rr.TextDocument(rank_banner(r, by, metric), media_type="text/markdown"))
             w.pair_done()
     return path
 
@@ -538,5 +528,5 @@ def run_triage(config, out_dir: str | Path, by: str | None = None, metric: str =
     records = {rec["index"]: rec for rec in store.records() if rec["index"] in wanted}
     source = config.selection.source()
     md = write_text(out_dir / TRIAGE_FILE, triage_markdown(config, ranked, top, by, metric, source, findings, by_reason))
-    rrd = write_triage_recording(out_dir / TRIAGE_RRD, config, out_dir, shown, records)
+    rrd = write_triage_recording(out_dir / TRIAGE_RRD, config, out_dir, shown, records, by, metric)
     return TriageOutcome(ranked, md, rrd, outcome, by, findings)

@@ -58,6 +58,14 @@ def inspect_recording(kitti_root: Path, out: Path) -> tuple[Path, dict]:
     return out, json.loads(r.stdout)
 
 
+def eval_run(kitti_root: Path, out: Path, frames: str, estimators) -> Path:
+    """``fviz eval`` on KITTI odometry 00, temporal pairs of ``frames``, one worker: the run folder."""
+    r = run_fviz("eval", "--kitti-root", kitti_root, "--sequence", "00", "--pair", "temporal", "--frames", frames,
+                 *[a for e in estimators for a in ("-e", e)], "--workers", "1", "--no-progress", "--out-dir", out, timeout=600)
+    assert r.returncode == 0, r.stderr
+    return out
+
+
 # Requests the page may make beyond the local servers (Rerun's web viewer fetches fonts, checks for
 # releases and sends telemetry): blocked, so that tests stay on the machine.
 BLOCKED = ("https://*", "http://*.com/*", "http://*.io/*", "http://*.org/*")

@@ -134,20 +134,30 @@ def test_metrics_table_and_summary_agree_with_json(inspected):
 
 
 def test_every_epipole_is_named_in_the_overview(inspected):
+    """Per F a glyph of its own centred on its epipole (on the border towards it when outside), over a black
+    halo, and its name in a label above it (stacked: one row per F)."""
     doc, ent, _ = inspected
     for v, k in (("a", 0), ("b", 1)):
         labels = col(ent[L.epipoles(v)], "LineStrips2D:labels")
-        strips = np.array(col(ent[L.epipoles(v)], "LineStrips2D:strips"))
-        assert len(labels) == 2 * len(doc["estimators"])  # a cross per F: names as hover text, no text boxes
+        radii = col(ent[L.epipoles(v)], "LineStrips2D:radii")
+        strips = col(ent[L.epipoles(v)], "LineStrips2D:strips")
+        names = col(ent[L.epipoles(v)], "Points2D:labels")
+        tags = np.array(col(ent[L.epipoles(v)], "Points2D:positions"))
+        assert names[: len(doc["estimators"])] == [e["name"] for e in doc["estimators"]]
         w, h = doc["pair"]["size_a"]
         image_centre = np.array([(w - 1) / 2, (h - 1) / 2])
-        for e in doc["estimators"]:
-            mine = [s for s, lab in zip(strips, labels) if lab.startswith(f"{e['name']}: epipole at (")]
-            assert len(mine) == 2
-            centre = mine[0].mean(0)
+        shapes = set()
+        for i, e in enumerate(doc["estimators"]):
+            mine = [np.array(s) for s, lab, r in zip(strips, labels, radii)
+                    if lab.startswith(f"{e['name']}: epipole at (") and r == np.float32(1.6)]
+            assert mine
+            shapes.add(tuple(np.round(np.concatenate(mine) - np.concatenate(mine).mean(0), 1).ravel()))
+            pts = np.concatenate(mine)
+            centre = (pts.min(0) + pts.max(0)) / 2
+            assert tags[i][0] == pytest.approx(centre[0]) and tags[i][1] < centre[1]  # its name above it
             ep = epipoles(np.array(e["F"]))[k]
             p = ep[:2] / ep[2]
-            if -0.5 <= p[0] <= w - 0.5 and -0.5 <= p[1] <= h - 0.5:  # the cross is on the epipole
+            if -0.5 <= p[0] <= w - 0.5 and -0.5 <= p[1] <= h - 0.5:  # the glyph is on the epipole
                 np.testing.assert_allclose(centre, p, atol=1e-3)
             else:  # on the border, on the way from the image centre to the epipole
                 on_border = min(abs(centre[0] + 0.5), abs(centre[0] - w + 0.5), abs(centre[1] + 0.5), abs(centre[1] - h + 0.5))
@@ -155,6 +165,9 @@ def test_every_epipole_is_named_in_the_overview(inspected):
                 d1, d2 = centre - image_centre, p - image_centre
                 assert abs(d1[0] * d2[1] - d1[1] * d2[0]) < 1e-6 * np.linalg.norm(d1) * np.linalg.norm(d2)
                 assert d1 @ d2 > 0
+        assert len(shapes) == len(doc["estimators"])  # no two F share a glyph
+        halo = [r for r, lab in zip(radii, labels) if not lab]
+        assert halo and all(r > np.float32(1.6) for r in halo)
 
 
 def test_stereo_epipole_at_infinity_is_marked_at_the_border(kitti_root, tmp_path):
@@ -163,9 +176,11 @@ def test_stereo_epipole_at_infinity_is_marked_at_the_border(kitti_root, tmp_path
     assert proc.returncode == 0, proc.stderr
     ent = read_entities(out)
     labels = col(ent[L.epipoles("a")], "LineStrips2D:labels")
-    cross = np.array(col(ent[L.epipoles("a")], "LineStrips2D:strips")[0])
-    assert labels[0].startswith("gt: epipole at infinity")  # rectified stereo: the true epipole is at infinity
-    assert cross.mean(0)[0] in (pytest.approx(-0.5, abs=1e-3), pytest.approx(1240.5, abs=1e-3))  # on the border
+    strips = col(ent[L.epipoles("a")], "LineStrips2D:strips")
+    ring = next(np.array(s) for s, lab in zip(strips, labels) if lab)  # the first labelled strip: gt's glyph (after the halo)
+    assert next(lab for lab in labels if lab).startswith("gt: epipole at infinity")  # rectified stereo: the true epipole is at infinity
+    centre = (ring.min(0) + ring.max(0)) / 2
+    assert centre[0] in (pytest.approx(-0.5, abs=1e-3), pytest.approx(1240.5, abs=1e-3))  # on the border
     arrows = col(ent[L.epipoles("a")], "Arrows2D:vectors")
     assert len(arrows) == 2 and abs(arrows[0][1]) < 1e-6 * abs(arrows[0][0])  # gt's: horizontal, towards it
     assert not list(tmp_path.glob(".*tmp*")), "no temporary file is left behind"
@@ -234,3 +249,31 @@ def test_help_is_light():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
     assert out == "[]"
     assert run_fviz("--help").returncode == 0
+
+
+def test_debug_keeps_a_user_estimators_traceback(tmp_path):
+    """Without --debug a raising estimator is one line (its exception); with it, the traceback down to the
+    user's own frame, in the JSON and on stderr, and the inspect table keeps to the first line."""
+    (tmp_path / "crash_mod.py").write_text(
+        "def helper():\n    raise RuntimeError('my estimator crashed')\n\n\ndef crash(pair, x_a, x_b):\n    return helper()\n")
+    common = ("inspect", "pair", "--synthetic", "--seed", "0", "-e", "crash_mod:crash", "-e", "ransac", "--probe", "0")
+    import os
+    import subprocess
+
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path), *sys.path])}  # this checkout's fviz, and the module
+
+    def fviz(*args):
+        return subprocess.run([sys.executable, "-m", "fviz", *map(str, args)], capture_output=True, text=True, env=env,
+                              timeout=300)
+
+    plain = fviz(*common, "--json", "--out", tmp_path / "a.rrd")
+    debug = fviz("--debug", *common, "--json", "--out", tmp_path / "b.rrd")
+    table = fviz("--debug", *common, "--out", tmp_path / "c.rrd")
+    assert plain.returncode == debug.returncode == table.returncode == 1, (plain.stderr, debug.stderr)
+    error = lambda r: next(e["error"] for e in json.loads(r.stdout)["estimators"] if e["name"] == "crash")  # noqa: E731
+    assert error(plain) == "RuntimeError: my estimator crashed"
+    lines = error(debug).splitlines()
+    assert lines[0] == "RuntimeError: my estimator crashed" and lines[1] == "Traceback (most recent call last):"
+    assert any("crash_mod.py" in ln and "in helper" in ln for ln in lines) and "raise RuntimeError('my estimator crashed')" in error(debug)
+    assert "in helper" in debug.stderr and "Traceback" not in plain.stderr
+    assert "failed:" in table.stdout and "Traceback" not in table.stdout and "in helper" in table.stderr

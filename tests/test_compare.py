@@ -9,7 +9,7 @@ from cli_util import assert_one_line_error, run_fviz
 from typer.testing import CliRunner
 
 from fviz.cli import app
-from fviz.compare import Side, compare
+from fviz.compare import EXACT_MAX_N, TIE_REL, Side, compare, wilcoxon_signed_rank
 
 pytestmark = pytest.mark.kitti
 
@@ -37,10 +37,15 @@ def runs(kitti_root, tmp_path_factory):
     return base / "a", base / "b"
 
 
+def apart(x, y, rel=TIE_REL):
+    """Not a tie under the default tolerance: more than 5 % of the larger value apart."""
+    return math.isfinite(x) and math.isfinite(y) and abs(x - y) > rel * max(abs(x), abs(y))
+
+
 def expected(va, vb, threshold):
     fails = lambda v, e: bool(e) or not math.isfinite(v) or v > threshold  # noqa: E731
-    wins = sum(va[n][0] < vb[n][0] for n in va if math.isfinite(va[n][0]) and math.isfinite(vb[n][0]))
-    losses = sum(va[n][0] > vb[n][0] for n in va if math.isfinite(va[n][0]) and math.isfinite(vb[n][0]))
+    wins = sum(va[n][0] < vb[n][0] and apart(va[n][0], vb[n][0]) for n in va)
+    losses = sum(va[n][0] > vb[n][0] and apart(va[n][0], vb[n][0]) for n in va)
     only_a = sum(fails(*va[n]) and not fails(*vb[n]) for n in va)
     only_b = sum(fails(*vb[n]) and not fails(*va[n]) for n in va)
     return wins, losses, only_a, only_b
@@ -74,8 +79,8 @@ def test_one_estimator_across_two_runs(runs, tmp_path):
     c = compare(Side(a, "magsac"), Side(b, "magsac"), "inlier_ratio", 0.5)
     va, vb = values(a, "magsac", "inlier_ratio"), values(b, "magsac", "inlier_ratio")
     # higher is better for inlier_ratio: a wins where its ratio is larger
-    assert len(c.wins) == sum(va[n][0] > vb[n][0] for n in va)
-    assert len(c.losses) == sum(va[n][0] < vb[n][0] for n in va)
+    assert len(c.wins) == sum(va[n][0] > vb[n][0] and apart(va[n][0], vb[n][0]) for n in va)
+    assert len(c.losses) == sum(va[n][0] < vb[n][0] and apart(va[n][0], vb[n][0]) for n in va)
     assert len(c.losses) > 0  # a 3 px threshold keeps more inliers than 1 px
     text = out.read_text()
     assert f"| magsac of a better (wins) | {len(c.wins)} |" in text and f"| magsac of b better (losses) | {len(c.losses)} |" in text
@@ -132,3 +137,62 @@ def test_unknown_estimator_or_metric(runs):
     a, _ = runs
     assert_one_line_error(run_fviz("compare", "--out-dir", a, "--a", "magsac", "--b", "nope"), 2, "nope")
     assert_one_line_error(run_fviz("compare", "--out-dir", a, "--a", "magsac", "--b", "8point", "--metric", "x"), 2, "--metric")
+
+
+def test_compare_md_lists_every_pair_difference_and_the_paired_test(runs):
+    a, _ = runs
+    invoke("compare", "--out-dir", a, "--a", "magsac", "--b", "8point", "--force")
+    va, vb = values(a, "magsac"), values(a, "8point")
+    text = (a / "compare.md").read_text()
+    rows = [line for line in text.split("## Per pair")[1].splitlines() if line.startswith("| `")]
+    assert len(rows) == sum(math.isfinite(va[n][0]) and math.isfinite(vb[n][0]) for n in va) == 9
+    diffs = []
+    for line in rows:
+        name, x, y, d = [c.strip().strip("`") for c in line.strip("|").split("|")[:4]]
+        assert float(x) == pytest.approx(va[name][0], rel=1e-3) and float(y) == pytest.approx(vb[name][0], rel=1e-3)
+        assert float(d) == pytest.approx(va[name][0] - vb[name][0], rel=1e-3, abs=1e-4)
+        diffs.append(abs(float(d)))
+    assert diffs == sorted(diffs, reverse=True)
+    # the exact test by enumerating the 2^9 sign patterns of the CSV's differences (distinct magnitudes here)
+    import itertools
+
+    d = [va[n][0] - vb[n][0] for n in va]
+    ranks = {n: 1 + sorted(map(abs, d)).index(abs(x)) for n, x in zip(va, d)}
+    assert len(set(map(abs, d))) == 9
+    w_plus = sum(ranks[n] for n, x in zip(va, d) if x > 0)
+    sums = [sum(r for r, s in zip(ranks.values(), signs) if s) for signs in itertools.product((0, 1), repeat=9)]
+    p = min(1.0, 2 * min(sum(s <= w_plus for s in sums), sum(s >= w_plus for s in sums)) / 512)
+    assert f"Wilcoxon signed-rank p (two-sided) | {p:.3g} (exact, n = 9, W+ = {w_plus:g}, W- = {45 - w_plus:g})" in text
+
+
+@pytest.mark.parametrize("n", [1, 5, 12])
+def test_wilcoxon_exact_one_signed_differences(n):
+    """Every difference of one sign: W+ = n(n+1)/2 is the largest of the 2^n equally likely sign patterns."""
+    w = wilcoxon_signed_rank(list(range(1, n + 1)))
+    assert (w.n, w.w_plus, w.w_minus, w.method) == (n, n * (n + 1) / 2, 0.0, "exact")
+    assert w.p == pytest.approx(min(1.0, 2 / 2**n))
+    assert wilcoxon_signed_rank([-v for v in range(1, n + 1)]).p == pytest.approx(w.p)
+
+
+def test_wilcoxon_exact_small_cases_by_enumeration():
+    """n = 4 with a tie: the two-sided p counts the sign patterns whose rank sum is at least as extreme."""
+    import itertools
+
+    d = [0.5, -1.0, 1.0, 2.0, 0.0]  # the zero is dropped; |1.0| tied: ranks 1, 2.5, 2.5, 4
+    w = wilcoxon_signed_rank(d)
+    ranks = [1, 2.5, 2.5, 4]
+    sums = [sum(r for r, s in zip(ranks, signs) if s) for signs in itertools.product((0, 1), repeat=4)]
+    lo, hi = sum(s <= w.w_plus for s in sums), sum(s >= w.w_plus for s in sums)
+    assert (w.n, w.w_plus, w.w_minus) == (4, 7.5, 2.5)
+    assert w.p == pytest.approx(min(1.0, 2 * min(lo, hi) / 16))
+
+
+def test_wilcoxon_normal_approximation_matches_its_closed_form():
+    n = EXACT_MAX_N + 10
+    d = [(k if k % 3 else -k) for k in range(1, n + 1)]  # distinct magnitudes: ranks 1..n, every third negative
+    w = wilcoxon_signed_rank(d)
+    w_plus = sum(k for k in range(1, n + 1) if k % 3)
+    z = (abs(w_plus - n * (n + 1) / 4) - 0.5) / math.sqrt(n * (n + 1) * (2 * n + 1) / 24)
+    assert (w.method, w.w_plus) == ("normal", w_plus)
+    assert w.p == pytest.approx(math.erfc(z / math.sqrt(2)))
+    assert wilcoxon_signed_rank([0.0, 0.0]).method == "none"

@@ -16,6 +16,7 @@ from typer.testing import CliRunner
 
 from fviz.cli import app
 from fviz.record import layout as L
+from fviz.record import reader as R
 
 pytestmark = pytest.mark.kitti
 
@@ -130,6 +131,37 @@ def test_recording_metrics_equal_csv(run):
         for key in ("sed_median", "epi_abs", "epi_sqr_fbn", "epipole_err_deg"):
             assert same(as_float(r[key]), t[key][SERIES.index(r["estimator"])]), (key, r["name"], r["estimator"])
     assert "a/image" not in ents  # light recording without --full
+
+
+def test_cumulative_curves_equal_what_metrics_csv_gives(run):
+    """eval.rrd's curves tab: per estimator the share of the pairs with pose error / SED / NSGD below each
+    threshold (a failure never is), as recorded values and as the drawn curve, both from the CSV here."""
+    import numpy as np
+
+    rows = read_csv(run / "metrics.csv")
+    for key in ("pose_err_deg", "sed_median", "nsgd"):
+        entity = f"{L.CURVES}/{key}"
+        thresholds = np.array(R.column(run / "eval.rrd", entity, "thresholds")[0])
+        names = R.column(run / "eval.rrd", entity, "estimators")[0]
+        recall = np.array(R.column(run / "eval.rrd", entity, "recall")[0]).reshape(len(names), len(thresholds))
+        assert names == [n for n in SERIES if n != "gt"]
+        strips = R.column(run / "eval.rrd", entity, "LineStrips2D:strips")[0]
+        for i, name in enumerate(names):
+            v = [as_float(r[key]) if not (r["error"] or r["pair_error"]) else math.inf for r in rows if r["estimator"] == name]
+            v = [math.inf if math.isnan(x) else x for x in v]
+            expected = [sum(x < t for x in v) / len(v) for t in thresholds]
+            assert recall[i].tolist() == pytest.approx(expected), (key, name)
+            drawn = np.array(strips[i])[:, 1]  # y down: the top of the panel is 100 %
+            assert drawn.tolist() == pytest.approx((L.CURVE_H * (1 - np.array(expected))).tolist())
+        assert thresholds[0] < 0.05 < thresholds[-1]  # FM-Bench's recall threshold inside every curve's range
+
+
+def test_summary_tab_shows_the_runs_figures(run):
+    doc = json.loads((run / "summary.json").read_text())
+    tab = R.text(run / "eval.rrd", L.RUN_SUMMARY)
+    assert len(tab) == 1 and "AUC@5°" in tab[0] and f"{doc['pairs']} pairs" in tab[0]
+    line = next(ln for ln in tab[0].splitlines() if ln.startswith("| magsac |"))
+    assert f"{doc['estimators']['magsac']['sed_median']:.4g}" in line
 
 
 def test_resume_of_a_finished_run_recomputes_nothing(run):

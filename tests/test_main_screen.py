@@ -10,7 +10,7 @@ import json
 import cv2
 import numpy as np
 import pytest
-from browser import inspect_recording
+from browser import eval_run as run_eval, inspect_recording
 from cli_util import run_fviz
 
 from fviz.record import layout as L
@@ -28,11 +28,7 @@ def inspected(kitti_root, tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def eval_run(kitti_root, tmp_path_factory):
-    out = tmp_path_factory.mktemp("main-eval") / "run"
-    r = run_fviz("eval", "--kitti-root", kitti_root, "--sequence", "00", "--pair", "temporal", "--frames", "0:7",
-                 *[a for e in ESTIMATORS for a in ("-e", e)], "--workers", "1", "--out-dir", out, timeout=600)
-    assert r.returncode == 0, r.stderr
-    return out
+    return run_eval(kitti_root, tmp_path_factory.mktemp("main-eval") / "run", "0:7", ESTIMATORS)
 
 
 def rows(path, entity: str, column: str, timeline: str | None = None) -> list:
@@ -95,7 +91,7 @@ def test_recording_stays_small(inspected):
 
 
 def test_eval_recording_has_metric_and_motion_tabs(eval_run):
-    assert list(R.blueprint_tabs(eval_run / "eval.rrd")) == ["metrics", "motion", "summary"]
+    assert list(R.blueprint_tabs(eval_run / "eval.rrd")) == ["metrics", "motion", "curves", "summary"]
 
 
 def test_open_on_a_tab_that_does_not_exist_is_a_one_line_error(inspected):
@@ -125,8 +121,25 @@ def test_one_colour_per_estimator_everywhere(inspected, eval_run):
         epipole_colors = rows(path, L.epipoles(v), "LineStrips2D:colors")[0]
         for name in names:
             # its lines and its epipole cross in its own tab, its epipole in the overview
-            line_colors = {rgb(c) for c in rows(path, L.est(v, name, "epilines"), "LineStrips2D:colors")[0]}
+            ent = L.est(v, name, "epilines")
+            strips = list(zip(rows(path, ent, "LineStrips2D:colors")[0], rows(path, ent, "LineStrips2D:radii")[0],
+                              rows(path, ent, "LineStrips2D:labels")[0]))
+            line_colors = {rgb(c) for c, radius, _ in strips if radius in (np.float32(0.9), 2.0)}
             assert line_colors == {expected[name]}, (v, name)
+            # below image b: an estimator's numbers; under the ground truth's lines the residual scale
+            captions = [label for _, radius, label in strips if radius == 0.0 and label]
+            if v == "a":
+                assert not captions
+            elif name == "gt":
+                scale = [rgb(c) for c, radius, _ in strips if radius == 6.0]
+                assert scale == [tuple(int(x) for x in c) for c in L.class_color(np.arange(L.RESIDUAL_CLASSES))]
+                assert not captions  # the scale's ends are labelled on the overview and in the captions
+            else:
+                metrics = next(e["metrics"] for e in doc["estimators"] if e["name"] == name)
+                assert captions == [f"{name}: SED {metrics['sed_median']:.3g} px | rotation {metrics['rot_err_deg']:.3g}° | "
+                                    f"translation {metrics['trans_err_deg']:.3g}° | NSGD {metrics['nsgd']:.3g} | inliers "
+                                    f"{int(metrics['n_inliers'])} of {doc['n_matches']} ({100 * metrics['inlier_ratio']:.2g} %) | "
+                                    "keypoints: its residual, dark blue on its line to yellow >= 3 px (scale below)"]
             overview = {rgb(c) for c, label in zip(epipole_colors, epipole_labels) if label.startswith(f"{name}: epipole")}
             assert overview == {expected[name]}, (v, name)
     # the run's metric series and motion tracks: named after the estimators, in their colours

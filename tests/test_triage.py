@@ -91,6 +91,60 @@ def test_gt_suspect_tags_where_inliers_disagree_with_the_ground_truth(temporal):
     assert tagged and all(7 <= int(k.split("/f")[1][:6]) <= 10 for k in tagged)
 
 
+def test_gt_suspect_is_the_pairs_whatever_by_and_inspect_says_the_same(temporal, tmp_path):
+    """One verdict per pair: the same tags ranking by either robust estimator or by a baseline, and inspect (the
+    command triage.md gives) reports it in its JSON notes and at the top of the recording's summary."""
+    import shlex
+
+    from fviz.record.reader import _blueprint_fields, open_rrd, text
+    from fviz.run import read_config
+    from fviz.triage import inspect_command
+
+    out, _, _ = temporal
+    records = jsonl(out / "results.jsonl")
+    verdicts = [{r.key: "gt-suspect" in [t for t, _ in r.tags] for r in rank_pairs(records, by, "sed_median")}
+                for by in ("magsac", "ransac", "oracle-mean")]
+    assert verdicts[0] == verdicts[1] == verdicts[2] and any(verdicts[0].values()) and not all(verdicts[0].values())
+    config = read_config(out)
+    source = config.selection.source()
+    for rec in records:
+        if not 6 <= rec["ref"]["frame_a"] <= 9:  # 6->7 looks right, 7->8 .. 9->10 do not (the README)
+            continue
+        args = shlex.split(inspect_command(config, source, rec["ref"]))[1:]
+        rrd = tmp_path / f"{rec['index']}.rrd"
+        r = run_fviz(*args, "--json", "--out", rrd)
+        assert r.returncode == 0, r.stderr
+        notes = json.loads(r.stdout)["notes"]
+        said = [n for n in notes if n.startswith("gt-suspect: ")]
+        assert bool(said) == verdicts[0][rec["key"]], (rec["key"], notes)
+        assert ("ground truth suspect" in text(rrd, L.SUMMARY)[0]) == bool(said)
+        titles = [v["display_name"][0] for v in _blueprint_fields(open_rrd(rrd)).values() if "display_name" in v]
+        assert any(t.startswith("GROUND TRUTH SUSPECT") for t in titles) == bool(said)  # the overview's title
+        assert all(f"note: {n}" in r.stderr for n in said)
+
+
+def test_gt_suspect_does_not_fire_on_small_baselines_with_exact_ground_truth():
+    """Synthetic pairs moving 3-8 cm have an exact ground truth, but their epipole is poorly determined: every tight
+    fit puts it > 6 deg off on most of them. Judged by the inliers' residuals to F_gt, none is suspect."""
+    from fviz.data.synthetic import SceneConfig, synthetic_pair
+    from fviz.diagnose import GT_SUSPECT_DIRECTION_DEG, diagnose, gt_suspect, ill_conditioned
+    from fviz.estimators.options import EstimatorOptions
+    from fviz.evaluate import evaluate_pair
+
+    opts = EstimatorOptions(("8point", "ransac", "magsac"))
+    far = 0
+    for seed in range(4):
+        pair = synthetic_pair(seed, SceneConfig(forward_range=(0.03, 0.08)))
+        result = evaluate_pair(pair, opts.estimators(), opts.feature_config())
+        diag, rows = diagnose(pair, result), result.to_dict()["estimators"]
+        tight = [e["metrics"]["epipole_err_deg"] for e in rows if e["name"] != "gt" and e["metrics"]["inlier_ratio"] >= 0.5
+                 and e["metrics"]["sed_median"] < 0.5]
+        far += bool(tight) and min(tight) > GT_SUSPECT_DIRECTION_DEG
+        assert ill_conditioned(diag, diag["estimators"]["magsac"])
+        assert gt_suspect(diag, rows) is None, (seed, gt_suspect(diag, rows))
+    assert far >= 2  # the epipole rule alone would have accused these exact ground truths
+
+
 def test_triage_recording_steps_through_the_worst_pairs_first(temporal):
     out, _, _ = temporal
     ranked = rank_pairs(jsonl(out / "results.jsonl"), "magsac", "sed_median")[:5]
@@ -104,6 +158,13 @@ def test_triage_recording_steps_through_the_worst_pairs_first(temporal):
     assert sorted(info) == list(range(5)) and images == set(range(5))
     assert info[0] == (ranked[0].index, ranked[0].key)
     assert all(info[r.rank] == (r.index, r.key) for r in ranked)
+    # it opens on the rank timeline, and the banner names the metric, the estimator and the value, rank by rank
+    from fviz.record.reader import _blueprint_fields, column, open_rrd
+
+    assert _blueprint_fields(open_rrd(out / TRIAGE_RRD))["time_panel"]["timeline"] == ["rank"]
+
+    banners = column(out / TRIAGE_RRD, L.TRIAGE_TAGS, "TextDocument:text")
+    assert [b[0].split("\n")[0].split("**")[1] for b in banners] == [f"rank {r.rank}: sed_median of magsac {r.value:.3g} px" for r in ranked]
 
 
 def test_oracle_mean_is_exact_on_raw_stereo_pairs_and_flagged(kitti_root, raw_drive, tmp_path):

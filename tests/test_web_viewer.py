@@ -20,7 +20,7 @@ import os
 
 import numpy as np
 import pytest
-from browser import Chromium, WebServer, inspect_recording, require_chromium, run_fviz
+from browser import Chromium, WebServer, eval_run, inspect_recording, require_chromium, run_fviz
 
 from fviz.record import layout as L
 
@@ -210,6 +210,20 @@ def test_overview_shows_both_frames_the_ground_truth_and_the_comparison(inspecte
         n = shot.count(color, chart)
         assert n > 150, f"{n} pixels of {name}'s colour {color} in the comparison chart; {shot.context}"
     print(f"white line pixels {white}")
+    # every F's epipole glyph drawn where the recording puts it (over the lines, in its colour)
+    from fviz.record import reader as R
+
+    for v, box in boxes.items():
+        scale = box[2] / pair_frames[v].shape[1]
+        strips, labels = R.column(inspected, L.epipoles(v), "LineStrips2D:strips")[0], R.column(inspected, L.epipoles(v), "LineStrips2D:labels")[0]
+        for name, color in COLORS.items():
+            pts = np.concatenate([np.array(st) for st, lab in zip(strips, labels) if lab.startswith(f"{name}: epipole")][:-1])
+            cx, cy = (pts.min(0) + pts.max(0)) / 2
+            sx, sy = int(box[0] + (cx + 0.5) * scale), int(box[1] + (cy + 0.5) * scale)
+            window = (max(sx - 16, 0), max(sy - 16, 0), 32, 32)
+            n = shot.count(color, window)
+            print(f"image {v}: {name}'s epipole glyph at screen ({sx}, {sy}): {n} pixels of its colour")
+            assert n > 12, f"{name}'s epipole glyph not visible on image {v} ({n} px at {sx}, {sy}); {shot.context}"
 
 
 def test_an_estimator_tab_shows_that_estimator_alone(inspected, pair_frames, tmp_path):
@@ -228,13 +242,78 @@ def test_an_estimator_tab_shows_that_estimator_alone(inspected, pair_frames, tmp
                 assert counts[v][other] < 0.02 * counts[v][name], \
                     f"{other}'s colour on the {name} tab, image {v}: {counts[v]}; {shot.context}"
     assert_keypoints_in_classes_of(name, inspected, shot, crops)  # its classes (the blueprint's override), not gt's
+    # below image b, not cut: the estimator's numbers (a label: light text on a grey box) and the residual scale
+    x, y, w, h = boxes["b"]
+    caption = shot.rgb[y + h + 4: y + h + 30, x + w // 4: x + 3 * w // 4].astype(int)
+    text = int(((caption.min(-1) > 170)).sum())  # the label's light box (dark text on it)
+    scale = shot.rgb[y + h + 30: y + h + 62, x: x + w]
+    bins = [int(near(scale, c, 25).sum()) for c in L.class_color(np.arange(L.RESIDUAL_CLASSES))]
+    print(f"below image b: {text} text pixels in the caption band, residual scale pixels per bin {bins}")
+    assert y + h + 62 <= shot.rgb.shape[0] - 30, f"image b and its footer run into the time panel; {shot.context}"
+    assert text > 300, f"no numbers below image b ({text} label pixels); {shot.context}"
+    assert sum(b > 20 for b in bins) >= L.RESIDUAL_CLASSES - 2, f"residual scale missing below image b: {bins}; {shot.context}"
+
+
+def plot_boxes(rgb: np.ndarray, min_size: int = 120) -> list[tuple[int, int, int, int]]:
+    """The dark plot backgrounds (layout.CHART_BACKGROUND) of a screen, row by row: [(x, y, w, h)]."""
+    import cv2
+
+    mask = near(rgb, L.CHART_BACKGROUND, 12).astype(np.uint8)
+    mask = cv2.morphologyEx(mask, cv2.MORPH_CLOSE, np.ones((9, 9), np.uint8))
+    n, _, stats, _ = cv2.connectedComponentsWithStats(mask)
+    boxes = [tuple(int(v) for v in stats[i, :4]) for i in range(1, n) if min(stats[i, 2], stats[i, 3]) >= min_size]
+    return sorted(boxes, key=lambda b: (b[1] // 100, b[0]))
+
+
+def track(rgb: np.ndarray, box, color) -> tuple[int, float]:
+    """(pixels of a series' colour in a plot, spread of its line: 10-90 % range of its per-column median height)."""
+    x, y, w, h = box
+    hit = near(rgb[y: y + h, x: x + w], color, 50)
+    cols = [np.median(np.flatnonzero(hit[:, c])) for c in range(w) if hit[:, c].any()]
+    return int(hit.sum()), (float(np.percentile(cols, 90) - np.percentile(cols, 10)) if len(cols) > 10 else 0.0)
+
+
+@pytest.fixture(scope="module")
+def deep_run(kitti_root, tmp_path_factory):
+    """Sequence 00, pairs 0..11, with 8-point's wild epipoles and the network's near-constant ones."""
+    return eval_run(kitti_root, tmp_path_factory.mktemp("runs") / "run", "0:12", (*ESTIMATORS, "deep"))
+
+
+def test_run_motion_tab_separates_the_flat_network_from_the_moving_truth(deep_run, tmp_path):
+    """eval.rrd's motion tab with 8point in the run: the ground truth's epipole moves, the network's stays flat,
+    and both are readable beside each other (ranges that leave 8-point's swings off-scale); the plots' legends
+    are hidden and one legend view holds every series' colour."""
+    shot = Shot(deep_run / "eval.rrd", tmp_path / "motion.png", "--tab", "motion")
+    boxes = plot_boxes(shot.rgb)
+    print(f"plots {boxes}")
+    assert len(boxes) >= 6, f"{len(boxes)} plots; {shot.context}"
+    colors = L.estimator_colors(["gt", *ESTIMATORS, "deep"])
+    gt, deep = track(shot.rgb, boxes[0], colors["gt"]), track(shot.rgb, boxes[0], colors["deep"])  # epipole x
+    print(f"epipole x: ground truth {gt[0]} px spread {gt[1]:.0f}; deep {deep[0]} px spread {deep[1]:.0f}")
+    assert gt[0] > 150 and deep[0] > 150, f"a track is missing: gt {gt}, deep {deep}; {shot.context}"
+    assert gt[1] > 40 and gt[1] > 4 * deep[1], f"the flat track is not told from the truth: gt {gt}, deep {deep}; {shot.context}"
+    legend = max(boxes, key=lambda b: (b[1], b[0]))  # the last view of the grid
+    for name, color in colors.items():
+        assert shot.count(color, legend) > 100, f"{name} missing from the legend view; {shot.context}"
+
+
+def test_triage_opens_on_rank_worst_first(deep_run, tmp_path):
+    """triage.rrd plots per rank: the ranked estimator's series falls from left (rank 0, the worst) to right."""
+    r = run_fviz("triage", "--out-dir", deep_run, "--by", "8point", "--top", "8", "--no-progress")
+    assert r.returncode == 0, r.stderr
+    shot = Shot(deep_run / "triage.rrd", tmp_path / "triage.png", "--tab", "metrics")
+    boxes = plot_boxes(shot.rgb)
+    x, y, w, h = boxes[0]  # median SED
+    hit = near(shot.rgb[y: y + h, x: x + w], COLORS["8point"], 50)
+    cols = [(c, np.median(np.flatnonzero(hit[:, c]))) for c in range(w) if hit[:, c].any()]
+    xs, ys = np.array(cols).T
+    rho = float(np.corrcoef(np.argsort(np.argsort(xs)), np.argsort(np.argsort(ys)))[0, 1])  # screen y grows downwards
+    print(f"8point's SED over the ranks: {len(cols)} columns, rank correlation of x and depth {rho:.2f}")
+    assert len(cols) > 50 and rho > 0.8, f"8point's series does not fall rank by rank (rho {rho:.2f}); {shot.context}"
 
 
 def test_eval_recording_plots_every_estimator_in_its_colour(kitti_root, tmp_path):
-    run = tmp_path / "run"
-    r = run_fviz("eval", "--kitti-root", kitti_root, "--sequence", "00", "--pair", "temporal", "--frames", "0:9",
-                 *[a for e in ESTIMATORS for a in ("-e", e)], "--workers", "1", "--no-progress", "--out-dir", run)
-    assert r.returncode == 0, r.stderr
+    run = eval_run(kitti_root, tmp_path / "run", "0:9", ESTIMATORS)
     shot = Shot(run / "eval.rrd", tmp_path / "eval.png")
     h, w = shot.rgb.shape[:2]
     plots = (0, 60, w, h - 120)

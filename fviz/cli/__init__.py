@@ -26,6 +26,15 @@ inspect_app = typer.Typer(help="Inspect one item (a pair) and write a Rerun reco
                           rich_markup_mode=None)
 app.add_typer(inspect_app, name="inspect")
 
+@app.callback()
+def _root(debug: bool = typer.Option(False, "--debug", help="Keep the traceback of an estimator that raises "
+                                                             "(in its error: stderr, JSON, results.jsonl).")) -> None:
+    if debug:
+        import os
+
+        os.environ["FVIZ_DEBUG"] = "1"  # the workers of eval inherit it
+
+
 # Modules with a ``register(app)`` function; a missing optional module is skipped.
 COMMAND_MODULES = ("inspect", "eval", "triage", "browse", "train", "table")
 

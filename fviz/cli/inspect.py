@@ -149,6 +149,10 @@ def pair(
                 index=index, colmap=colmap, min_shared=min_shared, matches=matches, gt_matches=gt_matches)
     p = load_pair(kitti_root, sequence, drive, frame, pair_kind, step, cams, synthetic, seed, user)
     result = evaluate_pair(p, ests, opts.feature_config(), norm, eval_threshold, threshold, timeout=estimator_timeout)
+    from fviz.diagnose import gt_suspect_note
+
+    if (note := gt_suspect_note(p, result)) is not None:
+        result.notes.insert(0, note)
     path = write_pair_recording(out or default_out(p.id.name), p, result, lines, probe, probe_by)
     doc = result.to_dict()
     doc["recording"] = str(path)
@@ -192,23 +196,33 @@ def _check_viewer(spawn: bool, web: bool, bind: str, port: int, web_port: int) -
         check_port_free(bind, web_port, "--web-port")
 
 
+# The table's columns: (metric, header). Headers short enough never to be cut (a pipe gives rich 80 columns);
+# the caption says what each is.
+TABLE_COLUMNS = (("sed_median", "SED px"), ("sampson_median", "Sampson px"), ("rot_err_deg", "rot °"),
+                 ("trans_err_deg", "trans °"), ("nsgd", "NSGD"), ("inlier_ratio", "inliers"),
+                 ("epipole_err_deg", "epipole °"), ("epi_abs", "EPI-ABS"), ("epi_sqr", "EPI-SQR"),
+                 ("agreement_nsgd", "NSGD to others"))
+TABLE_CAPTION = ("SED / Sampson px: medians over the evaluation matches; rot / trans / epipole °: errors of the recovered "
+                 "rotation, translation direction and epipole; NSGD: FM-Bench's normalized distance to F_gt; inliers: "
+                 "share of all matches; time s: the estimator's run time. Every metric: --json.")
+
+
 def _print_table(result, path: Path) -> None:
     from rich.console import Console
     from rich.table import Table
 
-    cols = [c for c in ("sed_median", "sampson_median", "rot_err_deg", "trans_err_deg", "nsgd", "inlier_ratio",
-                        "epipole_err_deg", "epi_abs", "epi_sqr", "agreement_nsgd") if any(c in r.metrics for r in result.estimators)]
+    cols = [(c, h) for c, h in TABLE_COLUMNS if any(c in r.metrics for r in result.estimators)]
     t = Table(title=f"{result.pair['name']}  ({result.n_matches} matches, {result.n_eval} for evaluation; "
-                    f"EPI means under {result.norm.upper()})")
-    t.add_column("estimator")
-    for c in cols:
-        t.add_column(c, justify="right")
-    t.add_column("s", justify="right")
+                    f"EPI means under {result.norm.upper()})", caption=TABLE_CAPTION, caption_justify="left")
+    t.add_column("estimator", no_wrap=True)
+    for _, h in cols:
+        t.add_column(h, justify="right", no_wrap=True, min_width=len(h))
+    t.add_column("time s", justify="right", no_wrap=True, min_width=6)
     for r in result.estimators:
         if r.error:
-            t.add_row(r.name, f"[red]failed: {r.error}[/red]", *[""] * (len(cols) - 1), "")
+            t.add_row(r.name, f"[red]failed: {r.error.splitlines()[0]}[/red]", *[""] * (len(cols) - 1), "")
         else:
-            t.add_row(r.name, *(f"{r.metrics.get(c, float('nan')):.4g}" for c in cols), f"{r.seconds:.3f}")
+            t.add_row(r.name, *(f"{r.metrics.get(c, float('nan')):.4g}" for c, _ in cols), f"{r.seconds:.3f}")
     console = Console(width=max(Console().width, 130))
     console.print(t)
     if not result.has_gt:

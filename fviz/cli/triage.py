@@ -67,15 +67,18 @@ def compare(
     run_a: Annotated[Optional[Path], typer.Option("--run-a", help="Run folder a (with --run-b and --estimator).")] = None,
     run_b: Annotated[Optional[Path], typer.Option("--run-b", help="Run folder b.")] = None,
     estimator: Annotated[Optional[str], typer.Option("--estimator", "-e", help="The estimator compared across --run-a / --run-b.")] = None,
-    metric: Metric = "sed_median",
+    metric: Annotated[str, typer.Option("--metric", help="Metric compared pair by pair, e.g. sed_median, pose_err_deg, nsgd, inlier_ratio.")] = "sed_median",
     fail_threshold: Annotated[float, typer.Option("--fail-threshold", help="A metric worse than this is a failure (px for sed_median).",
                                                   callback=o.checked("--fail-threshold", math.isfinite, "must be a number"))] = 2.0,
-    tie: Annotated[float, typer.Option("--tie", help="Differences up to this are ties.",
+    tie: Annotated[float, typer.Option("--tie", help="Differences up to this (in the metric's unit) are ties.",
                                        callback=o.checked("--tie", lambda v: math.isfinite(v) and v >= 0, "must be a number >= 0"))] = 0.0,
+    tie_rel: Annotated[float, typer.Option("--tie-rel", help="Differences up to this fraction of the larger value are ties (0: none).",
+                                           callback=o.checked("--tie-rel", lambda v: 0 <= v < 1, "must be in [0, 1)"))] = 0.05,
     out: Annotated[Optional[Path], typer.Option("--out", help="Markdown file to write (default: compare.md in --out-dir, else in --run-a).")] = None,
     force: Annotated[bool, typer.Option("--force", help="Replace an existing file that holds another comparison.")] = False,
 ) -> None:
-    """Wins and losses of estimator a against b per pair, and the pairs where only one of them fails."""
+    """Wins, losses and ties of estimator a against b pair by pair, Wilcoxon's signed-rank test of the differences,
+    the pairs where only one of them fails, and every pair's difference (compare.md)."""
     from fviz.compare import COMPARE_FILE, Side, compare as run_compare, write_compare
     from fviz.errors import FvizError
 
@@ -89,7 +92,7 @@ def compare(
         sides, dest = (Side(out_dir, a), Side(out_dir, b)), out_dir
     path = out or Path(dest) / COMPARE_FILE
     o.check_out_dir(path.parent, "--out" if out else "--out-dir")
-    c = run_compare(*sides, metric=metric, fail_threshold=fail_threshold, tie=tie)
+    c = run_compare(*sides, metric=metric, fail_threshold=fail_threshold, tie=tie, tie_rel=tie_rel)
     path, replaced = write_compare(c, path, force)
     _print_comparison(c, path, replaced)
 
@@ -102,7 +105,7 @@ def _print_comparison(c, path: Path, replaced: bool) -> None:
 
     t = Table(title=f"{c.a.label} vs {c.b.label}: {c.metric}")
     t.add_column("")
-    t.add_column("count", justify="right")
+    t.add_column("value", justify="right")
     for what, n in summary_rows(c):
         t.add_row(what, n)
     Console().print(t)

@@ -22,6 +22,7 @@ import contextlib
 import copy
 import sys
 import threading
+import os
 import time
 from dataclasses import dataclass
 from typing import Any, Callable
@@ -87,6 +88,10 @@ def run_estimator(name: str, fn: EstimateFn, pair, x_a: np.ndarray, x_b: np.ndar
     if kind == "raised":
         text = f"called exit({out.code!r})" if isinstance(out, SystemExit) else str(out) or "raised with no message"
         what = f"{type(out).__name__}: {text}"
+        if os.environ.get("FVIZ_DEBUG"):  # fviz --debug: where it raised, for the author of the estimator
+            import traceback
+
+            what += "\n" + "".join(traceback.format_exception(out)).rstrip()
         return Estimate(name, None, None, seconds, what)
     try:
         F, mask = _interpret(out, len(x_a))

@@ -59,6 +59,7 @@ from typing import Iterable, Sequence
 import numpy as np
 
 TIMELINE = "pair"
+RANK_TIMELINE = "rank"  # triage.rrd: the worst pair first
 PROBE_TIMELINE = "probe"
 VIEWS = ("a", "b")
 GT = "gt"
@@ -160,15 +161,68 @@ COMPARED_METRICS = (
     ("nsgd", "NSGD (FM-Bench)"),
     ("agreement_nsgd", "NSGD to the other estimators (no ground truth)"),
 )
-BAR_WIDTH, BAR_PITCH, BAR_HEAD, BAR_LABEL_X = 360.0, 24.0, 30.0, 450.0
+BAR_WIDTH, BAR_PITCH, BAR_HEAD, BAR_LABEL_X = 300.0, 28.0, 34.0, 450.0
+CDF_H = 70.0  # the residual CDF below the bars
 CHART_BACKGROUND = (32, 32, 36)  # charts and plots: dark, so that the ground truth's white shows in any theme
 
 
 def compare_height(n_bars: int) -> float:
     """Height of the comparison chart with every metric and ``n_bars`` F's."""
-    return len(COMPARED_METRICS) * (BAR_HEAD + (n_bars + 0.5) * BAR_PITCH)
-# Metric series of a run (``metrics/{key}``), one per F. f_dist is left out: it misranks (README, Metrics).
+    return len(COMPARED_METRICS) * (BAR_HEAD + (n_bars + 0.5) * BAR_PITCH) + BAR_HEAD + CDF_H + 30.0
+# Metric series of a run (``metrics/{key}``), one per F, with their titles. f_dist is left out: it misranks
+# (README, Metrics).
 SERIES_METRICS = ("sed_median", "rot_err_deg", "trans_err_deg", "nsgd", "epipole_err_deg", "inlier_ratio")
+METRIC_TITLES = {
+    "sed_median": "median SED (px)", "sed_mean": "mean SED (px)", "sampson_median": "median Sampson (px)",
+    "sampson_mean": "mean Sampson (px)", "rot_err_deg": "rotation error (deg)",
+    "trans_err_deg": "translation direction error (deg)", "pose_err_deg": "pose error (deg, max of rotation and translation)",
+    "nsgd": "NSGD (FM-Bench, share of the diagonal)", "epipole_err_deg": "epipole error (deg)",
+    "inlier_ratio": "inlier ratio (share of the matches)", "n_inliers": "inliers (matches)",
+}
+
+
+def metric_unit(key: str) -> str:
+    """The unit a metric is in ("px", "deg" or "")."""
+    return "px" if key.startswith(("sed", "sampson")) else "deg" if key.endswith("_deg") else ""
+
+
+def metric_title(key: str) -> str:
+    return METRIC_TITLES.get(key, key)
+
+
+SERIES_CUT = 5.0  # a series whose 5-95 % band is this many times wider than the others' (median) is cut off
+
+
+def series_range(values: dict[str, Sequence[float]], floor: float = 1e-3, zero: bool = False) -> tuple[float, float, list[str]] | None:
+    """The y range of one plot of a run, so that every series but a wild one is readable: the union of the
+    series' 5-95 % bands, leaving out a series whose band is over SERIES_CUT times wider than the median band
+    of the others (8-point's +-6000 px epipole swings beside ransac's +-30 px), padded by a quarter of the span
+    (at least ``floor``); from 0 when ``zero`` (errors). -> (low, high, the series cut), None without a
+    finite value. ``values``: {series name: its values over the pairs (NaN: none)}."""
+    bands = {}
+    for name, v in values.items():
+        v = np.asarray(v, float)
+        v = v[np.isfinite(v)]
+        if len(v):
+            bands[name] = (float(np.percentile(v, 5)), float(np.percentile(v, 95)))
+    if not bands:
+        return None
+    widths = {n: hi - lo for n, (lo, hi) in bands.items()}
+    cut = []
+    for n in bands:
+        others = [w for m, w in widths.items() if m != n and w > 0]
+        if len(bands) > 2 and others and widths[n] > SERIES_CUT * float(np.median(others)):
+            cut.append(n)
+    kept = [bands[n] for n in bands if n not in cut]
+    lo, hi = min(b[0] for b in kept), max(b[1] for b in kept)
+    if zero:
+        lo = min(lo, 0.0)
+    pad = max(0.25 * (hi - lo), floor)
+    return (lo if zero and lo == 0.0 else lo - pad), hi + pad, cut
+
+
+# Per track: the smallest padding of its range (px, deg, unit vector), so that a flat series stays a line.
+TRACK_FLOOR = {"epipole_x": 2.0, "epipole_y": 2.0, "epipole_dir_deg": 0.05, "rotation_deg": 0.02}
 MOTION_TRACKS = (
     ("epipole_x", "epipole x in image a (px)"),
     ("epipole_y", "epipole y in image a (px)"),
@@ -181,6 +235,7 @@ MOTION_TRACKS = (
 
 
 GAP_PX = 24  # between image a and image b (below it)
+FOOTER_PX = 64  # below image b: the estimator's numbers and the residual scale (and room above the time panel)
 
 
 def image(view: str) -> str:
@@ -214,6 +269,11 @@ def metric(key: str) -> str:
 
 def motion(track: str) -> str:
     return f"motion/{track}"
+
+
+LEGEND = "legend"  # runs: one coloured bar and name per series (the plots' own legends would cover their data)
+RUN_SUMMARY = "run/summary"  # runs: the run's standard figures (static)
+CURVES = "curves"  # runs (eval): the cumulative error curves, one 2D chart
 
 
 def probe(view: str) -> str:
@@ -251,28 +311,29 @@ def _images_view(sizes: tuple[tuple[int, int], tuple[int, int]], name: str, cont
     import rerun.blueprint as rrb
 
     (wa, ha), (wb, hb) = sizes
-    bottom = offset_b((wa, ha))[1] + hb
+    bottom = offset_b((wa, ha))[1] + hb + FOOTER_PX
     return rrb.Spatial2DView(origin="/", contents=[f"+ {image('a')}", f"+ {image('b')}", *contents], name=name,
                              visual_bounds=rrb.VisualBounds2D(x_range=[-0.5, max(wa, wb) - 0.5], y_range=[-0.5, bottom - 0.5]),
                              overrides=overrides)
 
 
-def overview_tab(names: Sequence[str], sizes, single_pair: bool, gt: bool = True):
+def overview_tab(names: Sequence[str], sizes, single_pair: bool, gt: bool = True, notice: str = ""):
     """Both images with the ground truth's residuals and lines (without ground truth: the last estimator's)
-    and every F's epipole; beside them the comparison (bars, one pair) and the summary."""
+    and every F's epipole; beside them the comparison (bars, one pair) and the summary.  ``notice`` opens the
+    title (e.g. that the ground truth is suspect)."""
     import rerun.blueprint as rrb
 
     ref = GT if gt or not names else names[-1]  # without ground truth: the last estimator's (default: magsac)
     contents = [f"+ {matches(ref)}"] + [f"+ {v}/est/{ref}/**" for v in VIEWS] + [f"+ {epipoles(v)}" for v in VIEWS]
     title = ("ground truth: residuals (keypoints) and lines (white)" if ref == GT
              else f"no ground truth: {ref}'s residuals (keypoints) and lines")
-    images = _images_view(sizes, f"{title}; every F's epipole", contents)
-    chart = rrb.VisualBounds2D(x_range=[-BAR_PITCH, BAR_LABEL_X + 90.0],
+    images = _images_view(sizes, f"{notice}{title}; every F's epipole", contents)
+    chart = rrb.VisualBounds2D(x_range=[-2 * BAR_PITCH, BAR_LABEL_X + 90.0],
                                y_range=[-BAR_HEAD, compare_height(len(names) + 1)])
     side = [rrb.Spatial2DView(origin=COMPARE, name="comparison (one bar per F, in its colour)", visual_bounds=chart,
                               background=CHART_BACKGROUND)] if single_pair else []
     side.append(rrb.TextDocumentView(origin=SUMMARY, name="summary"))
-    return rrb.Horizontal(images, rrb.Vertical(*side, row_shares=[5, 4][: len(side)]), column_shares=[5, 2], name="overview")
+    return rrb.Horizontal(images, rrb.Vertical(*side, row_shares=[3, 2][: len(side)]), column_shares=[5, 2], name="overview")
 
 
 def estimator_tab(name: str, sizes, classes: np.ndarray | None = None):
@@ -298,37 +359,78 @@ def probe_tab(sizes):
                           column_shares=[3, 1], name="probe")
 
 
-def _series_grid(entity_of, tracks: Sequence[tuple[str, str]], name: str):
+def legend_view(origin: str, n: int, name: str, pitch: float = 24.0):
+    """A 2D view framing the legend rows :func:`fviz.record.writer.log_legend` draws (``n`` of them)."""
     import rerun.blueprint as rrb
-    from rerun.blueprint.archetypes import PlotBackground
+
+    return rrb.Spatial2DView(origin=origin, name=name, background=CHART_BACKGROUND,
+                             visual_bounds=rrb.VisualBounds2D(x_range=[-20.0, 260.0], y_range=[-pitch, n * pitch]))
+
+
+def _series_grid(entity_of, tracks: Sequence[tuple[str, str]], name: str, ranges: dict | None, n_series: int):
+    """One plot per track, its y range from ``ranges`` ({path: series_range or None}; a track with no finite
+    value is left out), the plots' legends hidden (they covered the data) and one legend view instead."""
+    import rerun.blueprint as rrb
+    from rerun.blueprint.archetypes import PlotBackground, PlotLegend
 
     dark = PlotBackground(color=CHART_BACKGROUND, show_grid=True)  # the ground truth's white series shows
-    return rrb.Grid(*[rrb.TimeSeriesView(origin=entity_of(k), name=title, background=dark) for k, title in tracks],
-                    name=name)
+    views = []
+    for k, title in tracks:
+        path = entity_of(k)
+        if ranges is not None and ranges.get(path) is None:
+            continue  # nothing to plot (an epipole never at infinity)
+        axis, note = None, ""
+        if ranges is not None:
+            lo, hi, cut = ranges[path]
+            axis = rrb.ScalarAxis(range=(lo, hi), zoom_lock=False)
+            note = f"; {', '.join(cut)} off-scale" if cut else ""
+        views.append(rrb.TimeSeriesView(origin=path, name=title + note, background=dark, axis_y=axis,
+                                        plot_legend=PlotLegend(visible=False)))
+    views.append(legend_view(LEGEND, n_series, "legend (scroll a plot to zoom out: off-scale series)"))
+    return rrb.Grid(*views, name=name)
+
+
+CURVE_W, CURVE_H, CURVE_GAP, CURVE_PANELS = 420.0, 300.0, 150.0, 3  # the curves' panels, in 2D units (y down)
+
+
+def curves_tab(n_series: int):
+    """The cumulative error curves (runs of eval): one 2D chart, drawn by :func:`fviz.record.writer.log_curves`,
+    its legend below."""
+    import rerun.blueprint as rrb
+
+    width = CURVE_PANELS * CURVE_W + (CURVE_PANELS - 1) * CURVE_GAP
+    bounds = rrb.VisualBounds2D(x_range=[-80.0, width + 20.0], y_range=[-70.0, CURVE_H + 90.0 + 24.0 * n_series])
+    return rrb.Spatial2DView(origin=CURVES, name="curves", background=CHART_BACKGROUND, visual_bounds=bounds)
 
 
 def blueprint(names: Sequence[str], sizes: tuple[tuple[int, int], tuple[int, int]] | None, single_pair: bool, head: bool = False,
-              active: str | None = None, classes: dict[str, np.ndarray] | None = None):
+              active: str | None = None, classes: dict[str, np.ndarray] | None = None, ranges: dict | None = None,
+              curves: bool = False, run_summary: bool = False, notice: str = ""):
     """The stored layout. ``names``: the F's (``gt`` among them or not); ``sizes``: (w, h) of image a and b,
     None when the recording holds no images (eval without --full); ``single_pair``: inspect (comparison
     bars and the probe) rather than a run (metric series and motion tracks over the pair timeline);
-    ``head``: triage's tags above the tabs; ``active``: the tab it opens on (default the first);
-    ``classes``: (one pair) each estimator's keypoint classes, see :func:`estimator_tab`."""
+    ``head``: triage's banner and tags above the tabs (and the time panel on ``rank``); ``active``: the tab it
+    opens on (default the first); ``classes``: (one pair) each estimator's keypoint classes, see
+    :func:`estimator_tab`; runs: ``ranges`` the plots' y ranges ({path: :func:`series_range`}), ``curves`` a
+    tab of cumulative error curves, ``run_summary`` a summary tab with the run's figures; ``notice``: a
+    warning put in the overview's title (a suspect ground truth)."""
     import rerun.blueprint as rrb
 
     ests = [n for n in names if n != GT]
     classes = classes or {}
     tabs = []
     if sizes is not None:
-        tabs.append(overview_tab(ests, sizes, single_pair, gt=GT in names))
+        tabs.append(overview_tab(ests, sizes, single_pair, gt=GT in names, notice=notice))
         tabs += [estimator_tab(n, sizes, classes.get(n)) for n in ests]
         if single_pair:
             tabs.append(probe_tab(sizes))
     if not single_pair:
-        tabs.append(_series_grid(metric, [(k, k) for k in SERIES_METRICS], "metrics"))
-        tabs.append(_series_grid(motion, MOTION_TRACKS, "motion"))
-        if sizes is None:
-            tabs.append(rrb.TextDocumentView(origin=SUMMARY, name="summary"))
+        tabs.append(_series_grid(metric, [(k, metric_title(k)) for k in SERIES_METRICS], "metrics", ranges, len(names)))
+        tabs.append(_series_grid(motion, MOTION_TRACKS, "motion", ranges, len(names)))
+        if curves:
+            tabs.append(curves_tab(len(ests)))
+        if run_summary:
+            tabs.append(rrb.TextDocumentView(origin=RUN_SUMMARY, name="summary"))
     titles = [str(t.name) for t in tabs]
     if active is not None and active not in titles:
         raise ValueError(f"no tab {active!r} (tabs: {', '.join(titles)})")
@@ -336,6 +438,6 @@ def blueprint(names: Sequence[str], sizes: tuple[tuple[int, int], tuple[int, int
     if head:
         root = rrb.Vertical(rrb.TextDocumentView(origin=TRIAGE_TAGS, name="triage"), root, row_shares=[1, 7])
     # paused, so that the viewer opens on the probe's first step (the worst match) and play walks from there
-    time_panel = rrb.TimePanel(state="collapsed", timeline=PROBE_TIMELINE if single_pair else TIMELINE,
+    time_panel = rrb.TimePanel(state="collapsed", timeline=PROBE_TIMELINE if single_pair else RANK_TIMELINE if head else TIMELINE,
                                play_state="paused", fps=2.0)
     return rrb.Blueprint(root, time_panel, collapse_panels=True)

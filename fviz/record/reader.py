@@ -418,12 +418,48 @@ def recording_blueprint(path: str | Path, active: str | None = None):
     sizes = image_size(path, "a"), image_size(path, "b")
     single_pair = L.PROBE_TIMELINE in s.timelines or L.COMPARE in s.entity_paths
     classes = match_classes(path) if single_pair and L.matches(L.GT) in s.entity_paths else None
+    ranges = None if single_pair else series_ranges(path, s.entity_paths)
+    notice = suspect_notice_of(path) if single_pair and L.SUMMARY in s.entity_paths else ""
     try:
         bp = L.blueprint(list(s.estimators), sizes if None not in sizes else None, single_pair=single_pair,
-                         head=L.TRIAGE_TAGS in s.entity_paths, active=active, classes=classes)
+                         head=L.TRIAGE_TAGS in s.entity_paths, active=active, classes=classes, ranges=ranges,
+                         curves=any(p.startswith(L.CURVES + "/") for p in s.entity_paths),
+                         run_summary=L.RUN_SUMMARY in s.entity_paths, notice=notice)
     except ValueError as exc:
         raise FvizError(f"--tab {active}: {path} has {exc}") from None
     return s.app_id, bp
+
+
+SUSPECT_BANNER = "**⚠ ground truth suspect**: "  # how a single pair's summary opens when it is (record.writer)
+
+
+def suspect_notice_of(path: str | Path) -> str:
+    """The overview's warning of a single pair's recording, from its summary's first line."""
+    from fviz.diagnose import GT_SUSPECT_NOTE
+    from fviz.record.writer import suspect_notice
+
+    first = (text(path, L.SUMMARY) or [""])[0].split("\n", 1)[0]
+    return suspect_notice([GT_SUSPECT_NOTE + first.removeprefix(SUSPECT_BANNER)] if first.startswith(SUSPECT_BANNER) else [])
+
+
+def series_ranges(path: str | Path, paths=None) -> dict[str, tuple | None]:
+    """The y ranges of a run's plots (as the writer chose them) from the series the file holds."""
+    from fviz.record.writer import SERIES_PATHS, ranges_of_values
+
+    paths = paths if paths is not None else entity_paths(path)
+    values: dict[str, dict[str, list[float]]] = {}
+    for p in SERIES_PATHS:
+        if p not in paths:
+            continue
+        names = next((v for v in column(path, p, "SeriesLines:names") if v), [])
+        per: dict[str, list[float]] = {n: [] for n in names}
+        for row in column(path, p, "Scalars:scalars"):
+            if row is None:
+                continue
+            for n, v in zip(names, row):
+                per[n].append(math.nan if v is None else float(v))
+        values[p] = per
+    return ranges_of_values(values)
 
 
 def _blueprint_fields(reader) -> dict[str, dict[str, Any]]:

@@ -11,13 +11,16 @@ is ``layout.END`` instead, which tells a complete file from one cut between two 
 from __future__ import annotations
 
 import contextlib
+import math
 import os
 import sys
 from pathlib import Path
+from typing import Iterable, Sequence
 
 import numpy as np
 
 from fviz.data.pair import Pair
+from fviz.diagnose import GT_SUSPECT_NOTE
 from fviz.errors import FvizError
 from fviz.evaluate import PairResult
 from fviz.geometry import border_point, clip_lines, describe_epipole, epipoles, lines_in_a, lines_in_b, rotation_angle_deg
@@ -26,6 +29,19 @@ from fviz.record import layout as L
 FLUSH_PAIRS = 50  # a run's recording is flushed every this many pairs (see RecordingWriter.pair_done)
 JPEG_QUALITY = 50  # a KITTI frame in ~46 KB; zoomed 1.5x, no difference from 95 that a reader sees
 PROBE_STEPS = 20
+PROBE_RING_PX = 3.0  # the probe's ring: a line outside it misses the match by more than 3 px
+
+
+def batching():
+    """Rerun's batcher flushing only when told (a run every FLUSH_PAIRS pairs, or the end) or past 64 MB: its
+    default flushes every 200 ms, so a loaded machine cut one pair's recording into more chunks (each with
+    its own schema: 240 to 252 KB for the same pair). The same data now gives the same file."""
+    import rerun as rr
+
+    cfg = rr.ChunkBatcherConfig.NEVER()
+    cfg.flush_num_bytes = 64 << 20
+    cfg.chunk_max_rows_if_unsorted = 8192  # Rerun's default (NEVER's 256 would split triage's unsorted pairs)
+    return cfg
 
 
 class RecordingWriter:
@@ -57,7 +73,7 @@ class RecordingWriter:
         read_fd, self._write_fd = os.pipe()
         self._pump = threading.Thread(target=self._copy, args=(read_fd,), name="rrd-writer", daemon=True)
         self._pump.start()
-        self.rec = rr.RecordingStream(app_id)
+        self.rec = rr.RecordingStream(app_id, batcher_config=batching())
         self.rec.set_log_time_enabled(False)  # deterministic files: only the ``pair`` timeline
         self.index = index
         try:
@@ -178,14 +194,104 @@ def _epipole_marks(name: str, e: np.ndarray, size: tuple[int, int]):
     return cross, label, arrow
 
 
-def _log_marks(rec, path: str, strips: list, colors: list, radii: list, labels: list, arrows: list,
-               clear: bool = True) -> None:
-    """LineStrips2D (one colour, radius and hover label per strip) and Arrows2D [(origin, vector, colour)].
-    clear: log the arrows even when there are none (over a timeline, so that earlier arrows do not linger);
-    a single pair leaves them out, which saves their columns."""
+# The overview's epipoles: one glyph per F (the ground truth's a ring), so that coinciding epipoles stay
+# distinguishable; unit shapes, scaled by GLYPH_PX.
+GLYPH_PX = 11.0
+_GLYPHS = (
+    [[(-1, 0), (1, 0)], [(0, -1), (0, 1)]],  # +
+    [[(-0.8, -0.8), (0.8, 0.8)], [(-0.8, 0.8), (0.8, -0.8)]],  # x
+    [[(-0.8, -0.8), (0.8, -0.8), (0.8, 0.8), (-0.8, 0.8), (-0.8, -0.8)]],  # square
+    [[(0, -1.1), (1.1, 0), (0, 1.1), (-1.1, 0), (0, -1.1)]],  # diamond
+)  # each symmetric about the epipole: its bounding box is centred there
+
+
+def _glyph(k: int, at: np.ndarray, name: str) -> list[np.ndarray]:
+    if name == L.GT:
+        return [_ring(at, 1.3 * GLYPH_PX, 20)]
+    return [at + GLYPH_PX * np.asarray(s, float) for s in _GLYPHS[k % len(_GLYPHS)]]
+
+
+LABEL_ON_PHOTO = (0, 0, 0)  # Rerun writes a label in its entity's colour on a light box over the photos: black reads
+
+
+def _log_epipoles(rec, path: str, marks: list, clear: bool, size: tuple[int, int], extra=()) -> None:
+    """The overview's epipoles: per F a glyph of its own in its colour over a black halo, drawn above the
+    lines, and its name in a label stacked above the epipole (one row per F, so that epipoles a few pixels
+    apart keep both names) joined to it by a thin line. ``marks``: [(name, colour, where, hover label, arrows)];
+    ``extra``: more labels [(where, text)] (the residual scale's ends)."""
     import rerun as rr
 
-    marks = [rr.LineStrips2D(strips, colors=colors, radii=radii, labels=labels, show_labels=False)]
+    halo, strips, colors, radii, labels, arrows, points, names = [], [], [], [], [], [], [], []
+    for k, (name, color, at, label, arrow) in enumerate(marks):
+        glyph = _glyph(k - 1, at, name)
+        halo += glyph
+        strips += glyph
+        colors += [color] * len(glyph)
+        radii += [1.6] * len(glyph)
+        labels += [label] * len(glyph)
+        arrows += arrow
+        tag = at + (0.0, -2.8 * GLYPH_PX - 26.0 * k)
+        tag[0] = min(max(tag[0], 60.0), size[0] - 60.0)  # names of epipoles on the border stay on screen
+        strips.append(np.stack([at + (0.0, -1.3 * GLYPH_PX), tag]))
+        colors.append(color)
+        radii.append(0.5)
+        labels.append(label)
+        points.append(tag)
+        names.append(name)
+    points += [at for at, _ in extra]
+    names += [text for _, text in extra]
+    rec.log(path, rr.LineStrips2D(halo + strips, colors=[(0, 0, 0)] * len(halo) + colors,
+                                  radii=[3.2] * len(halo) + radii, labels=[""] * len(halo) + labels, show_labels=False,
+                                  draw_order=40.0),
+            rr.Points2D(points, radii=0.1, colors=[LABEL_ON_PHOTO], labels=names, show_labels=True, draw_order=41.0),
+            *([rr.Arrows2D(origins=[a[0] for a in arrows] or np.zeros((0, 2)), vectors=[a[1] for a in arrows] or np.zeros((0, 2)),
+                           colors=[a[2] for a in arrows] or None, radii=2.0)] if arrows or clear else []))
+
+
+def estimator_caption(r, result: PairResult) -> str:
+    """An estimator tab's numbers, below image b: "ransac: SED 0.246 px | rotation 0.172° | ..."."""
+    m = r.metrics
+    return (f"{r.name}: SED {_fmt(m.get('sed_median'))} px | rotation {_fmt(m.get('rot_err_deg'))}° | translation "
+            f"{_fmt(m.get('trans_err_deg'))}° | NSGD {_fmt(m.get('nsgd'))} | inliers {int(m.get('n_inliers', 0))} of "
+            f"{result.n_matches} ({_fmt(100 * m.get('inlier_ratio', np.nan), 2)} %) | keypoints: its residual, dark blue "
+            f"on its line to yellow >= {L.RESIDUAL_MAX_PX:g} px (scale below)")
+
+
+def caption_strip(size_b: tuple[int, int], r, result: PairResult) -> tuple:
+    """The estimator's numbers below image b, as a labelled invisible strip: (strip, colour, radius, label)."""
+    at = np.array([size_b[0] / 2, size_b[1] + 18.0])
+    return np.stack([at, at]), _rgb(LABEL_ON_PHOTO), 0.0, estimator_caption(r, result)
+
+
+SCALE_STEP = 28.0  # one residual bin of the scale below image b
+
+
+def scale_ends(size_b: tuple[int, int]) -> list[tuple[np.ndarray, str]]:
+    """Where the residual scale's end labels go (image b's frame) and what they say."""
+    y, x0 = size_b[1] + 46.0, size_b[0] / 2 - SCALE_STEP * L.RESIDUAL_CLASSES / 2
+    return [(np.array([x0 - 150.0, y]), "keypoint residual: on its line (0 px)"),
+            (np.array([x0 + SCALE_STEP * L.RESIDUAL_CLASSES + 80.0, y]), f">= {L.RESIDUAL_MAX_PX:g} px off its line")]
+
+
+def residual_scale(size_b: tuple[int, int]) -> list[tuple]:
+    """The keypoints' colour scale below image b (under the ground truth's lines, so in every tab): one segment
+    per residual bin. -> [(strip, colour, radius, label)]; the ends are labelled in the estimators' captions and
+    on the overview (:func:`scale_ends`)."""
+    y, x0 = size_b[1] + 46.0, size_b[0] / 2 - SCALE_STEP * L.RESIDUAL_CLASSES / 2
+    colors = L.class_color(np.arange(L.RESIDUAL_CLASSES))
+    return [(np.array([(x0 + c * SCALE_STEP, y), (x0 + (c + 1) * SCALE_STEP, y)]), colors[c], 6.0,
+             f"keypoint residual {c * L.RESIDUAL_BIN_PX:g} px" + ("+" if c == L.RESIDUAL_CLASSES - 1 else ""))
+            for c in range(L.RESIDUAL_CLASSES)]
+
+
+def _log_marks(rec, path: str, strips: list, colors: list, radii: list, labels: list, arrows: list,
+               clear: bool = True, show_labels: bool = False) -> None:
+    """LineStrips2D (one colour, radius and label per strip: shown with ``show_labels``, else on hover) and
+    Arrows2D [(origin, vector, colour)]. clear: log the arrows even when there are none (over a timeline, so
+    that earlier arrows do not linger); a single pair leaves them out, which saves their columns."""
+    import rerun as rr
+
+    marks = [rr.LineStrips2D(strips, colors=colors, radii=radii, labels=labels, show_labels=show_labels)]
     if arrows or clear:
         marks.append(rr.Arrows2D(origins=[a[0] for a in arrows] or np.zeros((0, 2)), vectors=[a[1] for a in arrows]
                                  or np.zeros((0, 2)), colors=[a[2] for a in arrows] or None, radii=2.0))
@@ -239,13 +345,15 @@ def pair_markdown(result: PairResult, probe_steps: int = 0) -> str:
     """The summary panel: the pair, a compact table (every metric is in the JSON), hints, F matrices last."""
     p = result.pair
     columns = [c for c in SUMMARY_COLUMNS if any(c[0] in r.metrics for r in result.estimators)] or list(SUMMARY_COLUMNS[:1])
-    lines = [
+    suspect = [n for n in result.notes if n.startswith(GT_SUSPECT_NOTE)]
+    lines = [f"**⚠ ground truth suspect**: {n.removeprefix(GT_SUSPECT_NOTE)}" for n in suspect] + [""] * bool(suspect)  # reader.SUSPECT_BANNER
+    lines += [
         f"**{p['name']}**",
         "",
         _pair_sentence(result),
         *precision_lines(result.match_precision),
         "",
-        "| F | " + " | ".join(t for _, t in columns) + " | s |",
+        "| F | " + " | ".join(t for _, t in columns) + " | time s |",
         "|---|" + "--:|" * (len(columns) + 1),
     ]
     for r in result.estimators:
@@ -262,7 +370,7 @@ def pair_markdown(result: PairResult, probe_steps: int = 0) -> str:
         lines += [f"| {a} | " + " | ".join(_fmt(v) for v in row) + " |" for a, row in zip(names, result.agreement["matrix"])]
         lines.append("")
     lines += [f"- **{r.name} failed**: {r.error}" for r in result.estimators if r.error]
-    lines += [f"- {n}" for n in result.notes]
+    lines += [f"- {n}" for n in result.notes if n not in suspect]
     lines.append("- One tab per estimator: its keypoints coloured by its residual (viridis, yellow = ≥ "
                  f"{L.RESIDUAL_MAX_PX:g} px off its line), its lines and epipole in its colour, the ground truth's white.")
     if probe_steps:
@@ -270,7 +378,8 @@ def pair_markdown(result: PairResult, probe_steps: int = 0) -> str:
                      f"{probe_steps} worst evaluation matches: each step rings one match and draws its epipolar "
                      "line under every F.")
     lines.append("- SED: symmetric epipolar distance, median over the evaluation matches; rot/trans: pose error "
-                 "from E = K_bᵀ F K_a; the other metrics: `fviz inspect pair ... --json`.")
+                 "from E = K_bᵀ F K_a; inliers: share of all matches; time s: the estimator's run time; the other "
+                 "metrics: `fviz inspect pair ... --json`.")
     for r in result.estimators:
         if r.F is not None:
             F = r.F / np.linalg.norm(r.F)
@@ -300,7 +409,7 @@ def log_pair(rec, index: int, pair: Pair, result: PairResult, n_lines: int = 30,
     sub = line_subset(result, n_lines)
     classes = match_classes(result)
     shared = single_pair and L.GT in classes  # one pair: positions once, see layout.estimator_tab
-    marks = {v: ([], [], [], [], []) for v in L.VIEWS}  # every F's epipole: strips, colours, radii, labels, arrows
+    marks: dict[str, list] = {v: [] for v in L.VIEWS}  # every F's epipole: (name, colour, where, label, arrows)
     for r in result.estimators:
         if r.error:
             continue
@@ -316,12 +425,16 @@ def log_pair(rec, index: int, pair: Pair, result: PairResult, n_lines: int = 30,
             arrows = [] if arrow is None else [(*arrow, color)]
             n = int(inside.sum())
             # lines unlabelled (hovering one names its entity, hence the estimator); the epipole's label says where
-            _log_marks(rec, L.est(v, r.name, "epilines"), [*seg[inside], *cross], [color] * (n + 2),
-                       [0.9] * n + [2.0, 2.0], [""] * n + [label, label], arrows, clear=not single_pair)
-            for target, value in zip(marks[v], ([*cross], [color, color], [2.0, 2.0], [label, label], arrows)):
-                target.extend(value)
+            # below image b: the estimator's numbers, or under the ground truth's lines (in every tab) the residual
+            # scale; labelled strips of this entity (a Points2D would add its columns to the file)
+            extra = [] if v != "b" else residual_scale(sizes[v]) if r.name == L.GT else [caption_strip(sizes[v], r, result)]
+            _log_marks(rec, L.est(v, r.name, "epilines"), [*seg[inside], *cross, *(x[0] for x in extra)],
+                       [color] * (n + 2) + [x[1] for x in extra], [0.9] * n + [2.0, 2.0] + [x[2] for x in extra],
+                       [""] * n + [label, label] + [x[3] for x in extra], arrows, clear=not single_pair,
+                       show_labels=r.name != L.GT)
+            marks[v].append((r.name, color, cross.mean(axis=(0, 1)), label, arrows))
     for v in L.VIEWS:
-        _log_marks(rec, L.epipoles(v), *marks[v], clear=not single_pair)
+        _log_epipoles(rec, L.epipoles(v), marks[v], not single_pair, sizes[v], scale_ends(sizes[v]) if v == "b" else ())
     if single_pair:
         log_comparison(rec, result, colors)
     else:
@@ -346,35 +459,71 @@ def _rgb(color) -> np.ndarray:
     return np.asarray(color, np.uint8)
 
 
+def bar_lengths(values: Sequence[float], width: float) -> np.ndarray:
+    """Bar lengths on a log scale, so that 0.17 and 0.21 px part beside 7.1: the largest value fills
+    ``width``, a decade below the smallest positive one (or 1 % of the largest) starts at 0; zero, negative and
+    missing values get no bar. (N,) -> (N,)."""
+    v = np.asarray(values, float)
+    pos = v[np.isfinite(v) & (v > 0)]
+    if not len(pos):
+        return np.zeros(len(v))
+    hi = float(pos.max())
+    lo = min(float(pos.min()) / 10, hi / 100)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out = width * (np.log10(v) - np.log10(lo)) / (np.log10(hi) - np.log10(lo))
+    return np.where(np.isfinite(v) & (v > 0), out, 0.0)
+
+
+# Per-point residual CDF on the overview's chart: share of the evaluation matches within x px of each F's lines.
+RESIDUAL_CDF_PX = np.geomspace(0.01, 10.0, 41)
+
+
 def log_comparison(rec, result: PairResult, colors: Colors) -> None:
-    """The overview's chart, drawn in 2D (y down): per metric a group of horizontal bars, one per F in its
-    colour, lengths relative to the group's largest value, each labelled "name value" in a column to the
-    right (Rerun centres labels on their point)."""
+    """The overview's chart, drawn in 2D (y down): per metric a title and one horizontal bar per F in its
+    colour on a log scale (:func:`bar_lengths`), each labelled "name value" just right of its bar; below, the
+    CDF of each F's residuals (SED) over the evaluation matches (log x)."""
     import rerun as rr
 
-    width, pitch, head, label_x = L.BAR_WIDTH, L.BAR_PITCH, L.BAR_HEAD, L.BAR_LABEL_X
-    bars, bar_colors, points, labels = [], [], [], []
+    width, pitch, head = L.BAR_WIDTH, L.BAR_PITCH, L.BAR_HEAD
+    bars, bar_colors, bar_radii, points, labels = [], [], [], [], []
     y = 0.0
     for key, title in L.COMPARED_METRICS:
         values = [np.nan if r.error else float(r.metrics.get(key, np.nan)) for r in result.estimators]
-        finite = [v for v in values if np.isfinite(v)]
-        if not finite:
+        if not any(np.isfinite(values)):
             continue
         points.append((width / 2, y))
-        labels.append(title)
+        labels.append(title + " (log scale)")
         y += head
-        top = max(max(finite), 1e-12)
-        for r, v in zip(result.estimators, values):
-            length = width * v / top if np.isfinite(v) else 0.0
+        for r, v, length in zip(result.estimators, values, bar_lengths(values, width)):
+            if r.name == L.GT and v == 0:
+                continue  # the ground truth's own pose error and NSGD: zero by definition
             bars.append([(0.0, y), (max(length, 0.5), y)])
             bar_colors.append(_rgb(colors[r.name]))
-            points.append((label_x, y))
-            labels.append(f"{r.name}: {'failed' if r.error else _fmt(v)}")
+            bar_radii.append(pitch / 3)
+            text = f"{r.name}: {'failed' if r.error else _fmt(v)}"
+            points.append((max(length, 0.5) + 12.0 + 4.2 * len(text), y))  # Rerun centres a label on its point
+            labels.append(text)
             y += pitch
         y += pitch / 2
+    y0 = y + head  # the residual CDF panel
+    ok = [r for r in result.estimators if not r.error and r.residuals_px is not None and result.eval_mask is not None]
+    u = np.log10(RESIDUAL_CDF_PX)
+    px = width * (u - u[0]) / (u[-1] - u[0])
+    for r in ok:
+        recall = cumulative_curve(r.residuals_px[result.eval_mask], RESIDUAL_CDF_PX)
+        bars.append(np.stack([px, y0 + L.CDF_H * (1 - recall)], -1))
+        bar_colors.append(_rgb(colors[r.name]))
+        bar_radii.append(1.5)
+    if ok:
+        bars.append([(0.0, y0), (0.0, y0 + L.CDF_H), (width, y0 + L.CDF_H)])
+        bar_colors.append(_rgb((200, 200, 200)))
+        bar_radii.append(0.6)
+        points += [(width / 2, y0 - 16.0), (0.0, y0 + L.CDF_H + 14.0), (width * 2 / 3, y0 + L.CDF_H + 14.0),
+                   (width, y0 + L.CDF_H + 14.0), (-14.0, y0), (-14.0, y0 + L.CDF_H)]
+        labels += ["matches with SED < x (per F)", "0.01", "1 px", "10", "100%", "0"]
     # labels white: Rerun draws them on grey boxes, where coloured text is hard to read; the bar beside each
     # label carries the colour
-    rec.log(L.COMPARE, rr.LineStrips2D(bars, colors=bar_colors, radii=pitch / 3),
+    rec.log(L.COMPARE, rr.LineStrips2D(bars, colors=bar_colors, radii=bar_radii),
             rr.Points2D(points, radii=0.1, colors=[(255, 255, 255)], labels=labels, show_labels=True))
 
 
@@ -488,9 +637,9 @@ def log_probe(rec, index: int, pair: Pair, result: PairResult, steps: int = PROB
         for v, lines, ring in (("a", [lines_in_a(r.F, xb[None]) for r in ok], xa), ("b", [lines_in_b(r.F, xa[None]) for r in ok], xb)):
             seg, inside = clip_lines(np.concatenate(lines), *sizes[v])
             drawn = [r for r, i in zip(ok, inside) if i]
-            strips = [*seg[inside], _ring(ring)] + ([[xa, xb + shift]] if v == "a" else [])  # a's frame is the root
+            strips = [*seg[inside], _ring(ring, PROBE_RING_PX)] + ([[xa, xb + shift]] if v == "a" else [])  # a's frame is the root
             _log_marks(rec, L.probe(v), strips, [_rgb(colors[r.name]) for r in drawn] + [marker] * (len(strips) - len(drawn)),
-                       [1.2] * len(drawn) + [1.5, 0.6][: len(strips) - len(drawn)],
+                       list(np.linspace(1.6, 0.7, len(drawn))) + [0.8, 0.6][: len(strips) - len(drawn)],
                        [f"{r.name}: epipolar line of match {j}" for r in drawn] + [f"match {j}"] * (len(strips) - len(drawn)), [],
                        clear=False)
         rows = [f"| {r.name} | {r.residuals_px[j]:.2f} |" for r in ok]
@@ -498,8 +647,9 @@ def log_probe(rec, index: int, pair: Pair, result: PairResult, steps: int = PROB
             f"**step {k + 1} of {len(order)}**: match {j}, a ({xa[0]:.1f}, {xa[1]:.1f}) → b ({xb[0]:.1f}, {xb[1]:.1f})"
             + ("" if getattr(m, "scores", None) is None else f", score {m.scores[j]:.3g}"),
             "", "| F | SED px |", "|---|--:|", *rows, "",
-            f"Worst first, by {rank}. Yellow rings: the match in a and b. A line that misses its ring is that F's "
-            "error here (ground truth white).",
+            f"Worst first, by {rank}. Yellow rings ({PROBE_RING_PX:g} px radius): the match in a and b. A line that "
+            f"misses its ring is more than {PROBE_RING_PX:g} px off there (ground truth white); lines are drawn "
+            "thinner in estimator order, so that one on top of another still shows both.",
         ])
         rec.log(L.PROBE_TEXT, rr.TextDocument(text, media_type="text/markdown"))
     return len(order)
@@ -507,7 +657,7 @@ def log_probe(rec, index: int, pair: Pair, result: PairResult, steps: int = PROB
 
 def log_static(rec, estimator_names: list[str], series: bool = False, legend: bool = True) -> None:
     """Once per recording: the residual legend (``legend``: when it holds matches) and, for runs (``series``),
-    the names and colours of the metric series and motion tracks."""
+    the names and colours of the metric series and motion tracks, and their legend (``layout.LEGEND``)."""
     import rerun as rr
 
     if legend:
@@ -515,8 +665,121 @@ def log_static(rec, estimator_names: list[str], series: bool = False, legend: bo
     if series:
         colors = L.estimator_colors(estimator_names)
         style = rr.SeriesLines(names=list(colors), colors=[_rgb(c) for c in colors.values()])
-        for path in [L.metric(k) for k in L.SERIES_METRICS] + [L.motion(k) for k, _ in L.MOTION_TRACKS]:
+        for path in SERIES_PATHS:
             rec.log(path, style, static=True)
+        log_legend(rec, colors)
+
+
+SERIES_PATHS = tuple([L.metric(k) for k in L.SERIES_METRICS] + [L.motion(k) for k, _ in L.MOTION_TRACKS])
+
+
+def log_legend(rec, colors: Colors, path: str = L.LEGEND, origin=(0.0, 0.0), pitch: float = 24.0) -> None:
+    """One row per F: a bar in its colour and its name beside it (labels white, on Rerun's grey boxes), drawn in
+    2D on the charts' dark background. -> rows of ``pitch`` units from ``origin``."""
+    import rerun as rr
+
+    x0, y0 = origin
+    rows = list(colors.items())
+    bars = [[(x0, y0 + i * pitch), (x0 + 40.0, y0 + i * pitch)] for i in range(len(rows))]
+    labels = ["ground truth" if n == L.GT else n for n, _ in rows]
+    rec.log(path, rr.LineStrips2D(bars, colors=[_rgb(c) for _, c in rows], radii=pitch / 4),
+            rr.Points2D([(x0 + 120.0, y0 + i * pitch) for i in range(len(rows))], radii=0.1, colors=[(255, 255, 255)],
+                        labels=labels, show_labels=True), static=True)
+
+
+# ---------------------------------------------------------------------------------------------- runs: ranges, curves
+
+
+def series_values(results: Iterable[PairResult]) -> dict[str, dict[str, list[float]]]:
+    """{series path: {F: its value on each pair (NaN where unknown)}} of the runs' plots (metrics and motion),
+    as :func:`log_series` logs them; also ``metrics/{key}`` of the cumulative curves' metrics (CURVE_METRICS)."""
+    out: dict[str, dict[str, list[float]]] = {}
+    keys = dict.fromkeys([*L.SERIES_METRICS, *(k for k, *_ in CURVE_METRICS)])
+    for result in results:
+        names = _names(result)
+        per = {L.metric(k): [np.nan if r.error else r.metrics.get(k, np.nan) for r in result.estimators] for k in keys}
+        per.update({L.motion(k): v for k, v in motion_values(result).items()})
+        for path, values in per.items():
+            for n, v in zip(names, values):
+                out.setdefault(path, {}).setdefault(n, []).append(float(v))
+    return out
+
+
+def ranges_of_values(values: dict[str, dict[str, Sequence[float]]]) -> dict[str, tuple | None]:
+    """{series path: its plot's y range (layout.series_range) or None} of :func:`series_values`."""
+    out = {}
+    for path, per in values.items():
+        if path not in SERIES_PATHS:
+            continue
+        track = path.removeprefix("motion/")
+        zero = path.startswith("metrics/")
+        out[path] = L.series_range(per, L.TRACK_FLOOR.get(track, 1e-3), zero=zero)
+    return out
+
+
+def series_ranges_of(results: Iterable[PairResult]) -> dict[str, tuple | None]:
+    return ranges_of_values(series_values(results))
+
+
+# The cumulative error curves of a run: (metric, title, thresholds, log x axis).
+CURVE_METRICS = (
+    ("pose_err_deg", "pose error (deg)", np.geomspace(0.01, 30.0, 71), True),
+    ("sed_median", "median SED (px)", np.geomspace(0.01, 10.0, 61), True),
+    ("nsgd", "NSGD (FM-Bench)", np.geomspace(1e-3, 1.0, 61), True),
+)
+
+
+def cumulative_curve(values: Sequence[float], thresholds: np.ndarray) -> np.ndarray:
+    """Share of the pairs whose value is below each threshold; NaN (a failure) never is. (P,), (T,) -> (T,)."""
+    v = np.nan_to_num(np.asarray(values, float), nan=np.inf)
+    return (v[:, None] < np.asarray(thresholds, float)[None]).mean(axis=0) if len(v) else np.zeros(len(thresholds))
+
+
+def log_curves(rec, per_pair: dict[str, dict[str, Sequence[float]]], colors: Colors) -> None:
+    """``curves/{metric}``: per metric of CURVE_METRICS a panel with one curve per F in its colour (share of the
+    pairs below x), axes and ticks, and the curves' values (AnyValues: ``thresholds``, ``estimators``,
+    ``recall`` row-major F x threshold) for readers. ``per_pair``: {metric: {F: value per pair, NaN failed}}."""
+    import rerun as rr
+
+    white = (200, 200, 200)
+    for i, (key, title, thresholds, log_x) in enumerate(CURVE_METRICS):
+        per = {n: v for n, v in per_pair.get(key, {}).items() if n != L.GT}
+        if not per:
+            continue
+        x0 = i * (L.CURVE_W + L.CURVE_GAP)
+        u = np.log10(thresholds) if log_x else thresholds
+        px = x0 + L.CURVE_W * (u - u[0]) / (u[-1] - u[0])
+        recall = {n: cumulative_curve(v, thresholds) for n, v in per.items()}
+        strips = [np.stack([px, L.CURVE_H * (1 - r)], -1) for r in recall.values()]
+        lo, hi = float(thresholds[0]), float(thresholds[-1])
+        ticks_x = ([10.0**k for k in range(math.ceil(math.log10(lo) - 1e-9), math.floor(math.log10(hi) + 1e-9) + 1)]
+                   if log_x else list(np.linspace(lo, hi, 5)))
+        axes = [[(x0, 0.0), (x0, L.CURVE_H), (x0 + L.CURVE_W, L.CURVE_H)]]
+        tick_pos, tick_labels = [], []
+        for t in ticks_x:
+            x = x0 + L.CURVE_W * ((np.log10(t) if log_x else t) - u[0]) / (u[-1] - u[0])
+            axes.append([(x, L.CURVE_H), (x, L.CURVE_H + 6)])
+            tick_pos.append((x, L.CURVE_H + 22))
+            tick_labels.append(f"{t:g}")
+        for y in (0.0, 0.5, 1.0):
+            axes.append([(x0 - 6, L.CURVE_H * (1 - y)), (x0, L.CURVE_H * (1 - y))])
+            tick_pos.append((x0 - 30, L.CURVE_H * (1 - y)))
+            tick_labels.append(f"{y:.0%}")
+        tick_pos.append((x0 + L.CURVE_W / 2, -30.0))
+        tick_labels.append(f"share of the pairs with {title} < x" + (" (log x)" if log_x else ""))
+        rec.log(f"{L.CURVES}/{key}",
+                rr.LineStrips2D(strips + axes, colors=[_rgb(colors[n]) for n in recall] + [white] * len(axes),
+                                radii=[2.0] * len(strips) + [0.8] * len(axes)),
+                rr.Points2D(tick_pos, radii=0.1, colors=[(255, 255, 255)], labels=tick_labels, show_labels=True),
+                rr.AnyValues(thresholds=np.asarray(thresholds, float), estimators=list(recall),
+                             recall=np.concatenate(list(recall.values()))), static=True)
+    log_legend(rec, {n: c for n, c in colors.items() if n != L.GT}, f"{L.CURVES}/legend", (0.0, L.CURVE_H + 70.0))
+
+
+def suspect_notice(notes: Sequence[str]) -> str:
+    """The overview's warning when the notes say the ground truth is suspect ("" otherwise)."""
+    ref = next((n.rpartition("(reference: ")[2].rstrip(")") for n in notes if n.startswith(GT_SUSPECT_NOTE)), None)
+    return "" if ref is None else f"GROUND TRUTH SUSPECT (summary; trust {ref}'s tab) - "
 
 
 def write_pair_recording(path: str | Path, pair: Pair, result: PairResult, n_lines: int = 30,
@@ -526,7 +789,8 @@ def write_pair_recording(path: str | Path, pair: Pair, result: PairResult, n_lin
     colors = L.estimator_colors(names)
     steps = len(probe_order(result, probe_by)[:max(probe_steps, 0)])  # checks --probe-by before writing
     classes = match_classes(result)
-    bp = L.blueprint(names, (pair.size_a, pair.size_b), single_pair=True, classes=classes if L.GT in classes else None)
+    bp = L.blueprint(names, (pair.size_a, pair.size_b), single_pair=True, classes=classes if L.GT in classes else None,
+                     notice=suspect_notice(result.notes))
     with RecordingWriter(path, "fviz-inspect", bp, index=False) as w:
         log_static(w.rec, names)
         w.rec.set_time(L.PROBE_TIMELINE, sequence=0)

@@ -129,7 +129,7 @@ def write_reports(out_dir: Path, config: RunConfig) -> dict[str, Path]:
         paths.update(csv=out_dir / CSV_FILE, parquet=out_dir / PARQUET_FILE)
         paths["summary"] = write_summary(out_dir / SUMMARY_FILE, config, stats)
         paths["summary_json"] = write_text(out_dir / SUMMARY_JSON, json.dumps(summary_document(config, stats), indent=2) + "\n")
-        paths["rrd"] = write_recording(out_dir / RRD_FILE, out_dir, config)
+        paths["rrd"] = write_recording(out_dir / RRD_FILE, out_dir, config, run_markdown(config, stats))
     except KeyboardInterrupt:
         raise Interrupted(f"while writing the reports: {_reports_kept(out_dir, paths)}") from None
     except WriteError as exc:
@@ -438,11 +438,25 @@ def log_summary_pair(rec_stream, index: int, rec: dict[str, Any], result: PairRe
     log_series(rec_stream, result)
 
 
-def write_recording(path: Path, out_dir: Path, config: RunConfig) -> Path:
-    """eval.rrd: every pair on the ``pair`` timeline with its metric series and motion tracks; with
-    ``--full`` (and a saved payload) also inspect's images, keypoints and lines, images re-read from the source."""
+def run_markdown(config: RunConfig, stats: _Stats) -> str:
+    """eval.rrd's summary tab: the run's standard figures (what summary.md opens with)."""
+    ests = list(stats.order) or config.series_names()
+    return "\n".join([f"**{config.selection.describe()}**: {stats.pairs} pairs ({stats.pair_errors} failed as a whole).",
+                      "", *figures_markdown(standard_figures(stats.per_pair, ests)), "",
+                      "Tabs: **metrics** and **motion** (one series per F over the `pair` timeline), **curves** (share "
+                      "of the pairs below each threshold), and with `--full` the pairs' images. Every figure: summary.md."])
+
+
+def write_recording(path: Path, out_dir: Path, config: RunConfig, summary: str = "") -> Path:
+    """eval.rrd: every pair on the ``pair`` timeline with its metric series and motion tracks, the cumulative
+    error curves and the run's figures (``summary``); with ``--full`` (and a saved payload) also inspect's
+    images, keypoints and lines, images re-read from the source."""
+    import rerun as rr
+
     from fviz.record import layout as L
-    from fviz.record.writer import RecordingWriter, log_pair, log_static
+    from fviz.record.writer import (
+        CURVE_METRICS, RecordingWriter, log_curves, log_pair, log_static, ranges_of_values, series_values,
+    )
 
     source = config.selection.source() if config.full else None
     names = config.series_names()
@@ -451,8 +465,13 @@ def write_recording(path: Path, out_dir: Path, config: RunConfig) -> Path:
         first = next((r["result"]["pair"] for r in ResultStore(out_dir, config).records() if r.get("result")), None)
         if first is not None:
             sizes = (tuple(first["size_a"]), tuple(first["size_b"]))
-    with RecordingWriter(path, "fviz-eval", L.blueprint(names, sizes, single_pair=False)) as w:
+    values = series_values(result for _, result, _ in iter_rows(out_dir, config))  # the plots' ranges first
+    curves = {key: values[L.metric(key)] for key, *_ in CURVE_METRICS}
+    bp = L.blueprint(names, sizes, single_pair=False, ranges=ranges_of_values(values), curves=True, run_summary=True)
+    with RecordingWriter(path, "fviz-eval", bp) as w:
         log_static(w.rec, names, series=True, legend=sizes is not None)
+        log_curves(w.rec, curves, L.estimator_colors(names))
+        w.rec.log(L.RUN_SUMMARY, rr.TextDocument(summary or "", media_type="text/markdown"), static=True)
         for rec, result, _ in iter_rows(out_dir, config):
             payload = payload_path(out_dir, rec["index"])
             if source is not None and rec.get("result") is not None and payload_ok(payload):
