@@ -18,6 +18,12 @@ def test_bundled_weights_match_their_manifest():
     assert hashlib.sha256(data).hexdigest() == manifest["sha256"]
     assert len(data) <= 20 * 2**20
     assert manifest["variant"] == "siamese-rec-pos-fbn" and manifest["steps"] > 0
+    from fviz.estimators.deep import STEREO
+
+    stereo = manifest["stereo_model"]
+    data = STEREO.read_bytes()
+    assert stereo["file"] == STEREO.name and hashlib.sha256(data).hexdigest() == stereo["sha256"]
+    assert len(data) <= 10 * 2**20 and "CC BY-NC-SA" in stereo["license"]
 
 
 def test_deep_estimator_in_inspect(tmp_path):
