@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 from cli_util import assert_one_line_error, run_fviz
 
-from fviz.viewer import free_port, stop_group, strip_ansi, web_command
+from fviz.viewer import free_port, strip_ansi, web_command
 
 BUDGET_S = 60.0
 
@@ -133,23 +133,13 @@ def test_url_is_printed_once_the_viewer_serves(recording):
 
 
 def test_rerun_errors_lose_their_ansi_escapes(recording, busy_port):
-    """A real error of Rerun's server (its web port taken) is coloured; what fviz shows of it is not."""
-    cmd, _ = web_command(recording, "127.0.0.1", free_port(), busy_port)
-    # Read Rerun's stderr up to its error line, then stop it: whether it then exits by itself (quickly when
-    # idle, not always under load) is Rerun's business, not what this test checks.
-    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True)
-    raw = ""
-    try:
-        for line in proc.stderr:
-            raw += line
-            if "already in use" in line:
-                break
-    finally:
-        stop_group(proc)
-    assert "already in use" in raw
+    """A real error of Rerun's server is coloured; what fviz shows of it is not. Its recording port taken: Rerun
+    exits at once (its web port taken, Rerun 0.41 sometimes serves on regardless, so that is no error to wait for)."""
+    cmd, _ = web_command(recording, "127.0.0.1", busy_port, free_port())
+    raw = subprocess.run(cmd, capture_output=True, text=True, timeout=5 * BUDGET_S).stderr
     assert "\x1b[" in raw
     clean = strip_ansi(raw)
-    assert "\x1b" not in clean and "error" in clean.lower()
+    assert "\x1b" not in clean and "already in use" in clean
 
 
 # ------------------------------------------------------------------------------ item 12
