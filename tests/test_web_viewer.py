@@ -302,8 +302,7 @@ def test_triage_opens_on_rank_worst_first(deep_run, tmp_path):
     r = run_fviz("triage", "--out-dir", deep_run, "--by", "8point", "--top", "8", "--no-progress")
     assert r.returncode == 0, r.stderr
     shot = Shot(deep_run / "triage.rrd", tmp_path / "triage.png", "--tab", "metrics")
-    boxes = plot_boxes(shot.rgb)
-    x, y, w, h = boxes[0]  # median SED
+    x, y, w, h = min(plot_boxes(shot.rgb), key=lambda b: b[0] + b[1])  # the top-left plot: median SED
     hit = near(shot.rgb[y: y + h, x: x + w], COLORS["8point"], 50)
     cols = [(c, np.median(np.flatnonzero(hit[:, c]))) for c in range(w) if hit[:, c].any()]
     xs, ys = np.array(cols).T
