@@ -178,6 +178,13 @@ def f_loss(F_pred: torch.Tensor, F_t: torch.Tensor, norm: str, l1_weight: float 
     return loss.mean()
 
 
+def sed_loss(F_pred: torch.Tensor, xa: torch.Tensor, xb: torch.Tensor, knee_px: float = 1.0) -> torch.Tensor:
+    """Mean Charbonnier of the symmetric epipolar distance of ``F_pred`` on correspondences (x_b^T F_t x_a = 0):
+    ~SED^2 / 2 below ``knee_px``, ~SED above it.  Scale- and sign-invariant in F.  (B, 3, 3), (B, n, 3) x 2 -> scalar."""
+    sed = epipolar_metrics(F_pred, xa, xb)["sed"]
+    return (knee_px * (torch.sqrt(1.0 + (sed / knee_px).square()) - 1.0)).mean().float()
+
+
 def sample_points_on_geometry(F_t: torch.Tensor, input_hw: tuple[int, int], n: int, generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
     """Points with x_b^T F_t x_a = 0: x_a uniform, x_b = a uniform point projected on F_t x_a.  -> (B, n, 3) x 2, float64."""
     B = F_t.shape[0]
@@ -511,6 +518,8 @@ def train(
     metrics: dict[str, float] = {k: v for k, v in history[-1].items() if k not in ("step", "epoch")} if history else {}
 
     pending: list[torch.Tensor] = []  # losses of the steps since the last flush, still on the device
+    point_rng = torch.Generator().manual_seed(t.seed * 7919 + step + rank)  # virtual correspondences of sed_loss
+    best = [min((h[t.keep_best] for h in history if t.keep_best in h), default=math.inf) if t.keep_best else math.inf]
     last_grad: list[Any] = [None]
 
     def flush() -> None:
@@ -563,6 +572,12 @@ def train(
             metrics = validate(model, val_loader, recipe, device, amp_dtype)
             history.append({"step": step, "epoch": epoch, **metrics})
             curves.log(step, {f"val/{k}": v for k, v in metrics.items()})
+            if t.keep_best and metrics.get(t.keep_best, math.inf) < best[0]:
+                best[0] = metrics[t.keep_best]
+                dtype = torch.float16 if t.export_dtype == "float16" else torch.float32
+                atomic_save(make_checkpoint(model, recipe=recipe.to_dict(), metrics={"last": metrics, "history": history},
+                                            step=step, epoch=epoch, recording_id=recording_id, dtype=dtype, version=version),
+                            out_dir / "best.pt")
             if progress:
                 recent = losses[-t.log_every:]
                 train_part = f"train loss {sum(recent) / len(recent):.4g} (mean of the last {len(recent)} batches, training mode)" if recent else ""
@@ -588,6 +603,9 @@ def train(
                 loss = f_loss(F_pred, F_t, norm, t.l1_weight, t.l2_weight, t.loss_frame, recipe.input_hw)
                 if t.t_norm_weight > 0 and getattr(model.head, "t_raw_norm", None) is not None:
                     loss = loss + t.t_norm_weight * model.head.t_raw_norm.log().square().mean()
+                if t.sed_weight > 0:
+                    xa, xb = sample_points_on_geometry(F_t, recipe.input_hw, t.sed_points, point_rng)
+                    loss = loss + t.sed_weight * sed_loss(F_pred, xa, xb)
                 pending.append(loss.detach())  # checked at the next flush (no host sync per step)
                 for group in opt.param_groups:
                     group["lr"] = lr_at(step, total, t)

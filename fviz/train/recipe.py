@@ -9,7 +9,7 @@ A recipe has three tables, every key optional (defaults below):
     [data]    source, root, sequences, drives, val_sequences, kind, steps, cams, frames, frame_stride,
               val_fraction, train_size, val_size, val_points, cache, synthetic = { SceneConfig fields }
     [train]   batch_size, lr, schedule, warmup_steps, weight_decay, epochs, max_steps, l1_weight, l2_weight, loss_frame,
-              grad_clip, t_norm_weight, seed, device, amp, num_workers, threads, out_dir, init, checkpoint_every, val_every,
+              grad_clip, t_norm_weight, sed_weight, sed_points, keep_best, seed, device, amp, num_workers, threads, out_dir, init, checkpoint_every, val_every,
               log_every, export_dtype
 
     [variants."siamese-rec-pos-fbn"]   # optional per-variant overrides, applied when
@@ -126,6 +126,15 @@ class TrainSection:
     # starting weights are rescaled to median length 1 before the first step, and the loss adds
     # t_norm_weight * mean(log ||raw t||)^2.  0 turns both off (the parametrisation before 2026-12).
     t_norm_weight: float = field(default=0.01, metadata={"min": 0.0})
+    # A geometric term beside the F loss: sed_weight * mean robust symmetric epipolar distance (model-input px,
+    # Charbonnier with a 1 px knee) of the prediction on sed_points virtual correspondences of the target per pair
+    # (fviz.train.loop.sed_loss).  It weighs a pair's error as the images show it: a 1 deg yaw moves points
+    # by f * 0.017 px, which L1 + L2 on a unit-norm F barely sees.  0: the paper's loss alone.
+    sed_weight: float = field(default=0.0, metadata={"min": 0.0})
+    sed_points: int = field(default=64, metadata={"min": 8})
+    # A validation figure (e.g. "sed_px"; lower is better): each validation that improves it exports
+    # out_dir/best.pt (early stopping without losing the last checkpoint).  "": off.
+    keep_best: str = field(default="", metadata=_choices("", "loss", "epi_abs", "epi_sqr", "sed_px", "f_dist"))
     seed: int = 0
     device: str = "auto"  # auto | cpu | cuda | cuda:N
     amp: str = field(default="auto", metadata=_choices("auto", "bf16", "fp16", "off"))
