@@ -3,7 +3,7 @@
     python benchmarks/bench_deep_kitti.py                                  # bundled and synthetic models
     python benchmarks/bench_deep_kitti.py -e deep:runs/kitti_finetune/model.pt --json out.json
 
-Held-out set: the sequences named in ``--recipe``'s ``data.val_sequences`` (recipes/kitti_finetune.toml:
+Held-out set: ``--test SEQ`` (repeatable), else the sequences named in ``--recipe``'s ``data.val_sequences`` (recipes/kitti_finetune.toml:
 04 and 10 of the shared samples), temporal step 1 forward (every camera present) and stereo pairs.
 Each estimator runs through :func:`fviz.train.heldout.evaluate_heldout` (the eval's metrics, plus
 rotation error and yaw from E = K_b^T F K_a).  Rows: the deep models, the straight-ahead constant,
@@ -29,6 +29,7 @@ TARGETS = [
     ("temporal_sed_median", "temporal median SED (px)", "<=", 1.0),
     ("temporal_rot_err_median", "temporal median rotation error (deg)", "<=", 0.2),
     ("temporal_yaw_corr", "temporal yaw correlation", ">=", 0.95),
+    ("temporal_yaw_slope", "temporal yaw slope (pred / true)", "~", 1.0),
     ("straight_sed_median", "straight driving median SED (px)", "< constant", None),
     ("stereo_epipole_err_median", "stereo median epipole error (deg)", "<", 10.0),
     ("stereo_sed_median", "stereo median SED (px)", "", None),
@@ -43,7 +44,11 @@ def main() -> int:
     ap.add_argument("--kitti-root", default=str(KITTI_ROOT))
     ap.add_argument("-e", "--estimator", action="append", default=[], help="more estimators (deep:PATH, ...)")
     ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--test", action="append", default=[], metavar="SEQ",
+                    help="held-out sequence or drive (repeatable; default: the recipe's data.val_sequences)")
     ap.add_argument("--json", default="")
+    ap.add_argument("--no-baselines", action="store_true",
+                    help="only the -e estimators (the bundled models, constant and classical rows are left out)")
     args = ap.parse_args()
 
     import torch
@@ -53,10 +58,14 @@ def main() -> int:
     from fviz.train.recipe import load_recipe
 
     torch.set_num_threads(args.threads)
-    recipe = load_recipe(args.recipe, [f"data.root={json.dumps(args.kitti_root)}", "data.steps=[1]", "data.both_directions=false"])
-    specs = ["deep", "deep:synthetic", *args.estimator]
+    overrides = [f"data.root={json.dumps(args.kitti_root)}", "data.steps=[1]", "data.both_directions=false"]
+    if args.test:  # test sequences replace the validation ones (and leave the training lists)
+        overrides += [f"data.val_sequences={json.dumps(args.test)}", "data.sequences=[]", "data.drives=[]"]
+    recipe = load_recipe(args.recipe, overrides)
+    specs = ([] if args.no_baselines else ["deep", "deep:synthetic"]) + args.estimator
     estimators = [(display_name(s), get_estimator(s)) for s in specs]
-    estimators += [("constant", straight_ahead_f), ("8point", get_estimator("8point")), ("magsac", get_estimator("magsac"))]
+    if not args.no_baselines:
+        estimators += [("constant", straight_ahead_f), ("8point", get_estimator("8point")), ("magsac", get_estimator("magsac"))]
     t0 = time.perf_counter()
     pairs = list(heldout_pairs(recipe))
     print(f"held-out: {', '.join(recipe.data.val_sequences)} of {args.kitti_root}: {len(pairs)} pairs "

@@ -11,7 +11,8 @@ ground truth, FBN EPI-ABS / EPI-SQR, median SED, epipole error); on top, for pos
 - straight driving: temporal pairs with |GT yaw| < ``STRAIGHT_YAW_DEG``.
 
 Summary figures (:func:`summarize`) are medians over pairs, split by pair kind:
-``temporal_sed_median``, ``temporal_rot_err_median``, ``temporal_yaw_corr``, ``straight_sed_median``,
+``temporal_sed_median``, ``temporal_rot_err_median``, ``temporal_yaw_corr``, ``temporal_yaw_slope`` (least
+squares, predicted on true yaw: 1 follows the car, 0 ignores it), ``straight_sed_median``,
 ``stereo_epipole_err_median``, ``stereo_sed_median``, and the paper's Table 1 means ``epi_abs`` /
 ``epi_sqr`` (FBN) over all pairs.
 """
@@ -104,9 +105,10 @@ def summarize(rows: list[PairFigures]) -> dict[str, Any]:
     yaw_p = np.array([r.metrics.get("yaw_deg", math.nan) for r in temporal])
     yaw_g = np.array([r.gt_yaw for r in temporal])
     ok = np.isfinite(yaw_p)
-    corr = math.nan
+    corr = slope = math.nan
     if ok.sum() >= 3 and np.std(yaw_p[ok]) > 0 and np.std(yaw_g[ok]) > 0:
         corr = float(np.corrcoef(yaw_p[ok], yaw_g[ok])[0, 1])
+        slope = float(np.polyfit(yaw_g[ok], yaw_p[ok], 1)[0])  # predicted yaw per degree of true yaw
     epi = [r.metrics.get("epi_abs_fbn", math.nan) for r in rows]
     epi_sq = [r.metrics.get("epi_sqr_fbn", math.nan) for r in rows]
     return {
@@ -114,6 +116,7 @@ def summarize(rows: list[PairFigures]) -> dict[str, Any]:
         "temporal_sed_median": _median([r.metrics.get("sed_median") for r in temporal]),
         "temporal_rot_err_median": _median([r.metrics.get("rot_err_deg") for r in temporal]),
         "temporal_yaw_corr": corr,
+        "temporal_yaw_slope": slope,
         "straight_sed_median": _median([r.metrics.get("sed_median") for r in straight]),
         "stereo_epipole_err_median": _median([r.metrics.get("epipole_err_deg") for r in stereo]),
         "stereo_sed_median": _median([r.metrics.get("sed_median") for r in stereo]),
