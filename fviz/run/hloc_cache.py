@@ -36,6 +36,8 @@ from fviz.estimators.features import FeatureConfig, Features, Matches
 FEATURES_FILE = "features.h5"
 MATCHES_FILE = "matches.h5"
 SETTINGS_ATTR, IMAGE_ATTR, KEYPOINTS_ATTR = "fviz_settings", "fviz_image", "fviz_keypoints"
+DATASET_BYTES = 8192  # HDF5's own bytes per dataset and group, at most (measured ~1-3 KB)
+FREE_MARGIN = 64 << 20  # free space the cache leaves to results.jsonl and the reports
 DESCRIPTOR_DIMS = {"sift": (128, np.float32), "orb": (32, np.uint8), "akaze": (61, np.uint8)}
 
 # a group fviz wrote: (file, group name, {dataset: array}, {attribute: text})
@@ -225,6 +227,7 @@ class CacheWriter:
         self.notes: list[str] = []
         self._open: dict[str, tuple[Any, Path, Path]] = {}  # file -> (h5 file, final path, temporary path)
         self._names: dict[str, set[str]] = {}
+        self._bytes: dict[str, int] = {}  # an upper bound of each file's size
         self.failed = False
 
     def add(self, entries: list[Entry]) -> None:
@@ -232,6 +235,8 @@ class CacheWriter:
             return
         try:
             for file, name, data, attrs in entries:
+                if (why := self._no_room(file, sum(v.nbytes for v in data.values()) + DATASET_BYTES * (len(data) + 1))):
+                    return self._fail(f"{file}: not written ({why}); the run goes on without caching features")
                 h5 = self._file(file)
                 if name in h5:
                     del h5[name]
@@ -243,6 +248,28 @@ class CacheWriter:
         except Exception as exc:
             self._fail(f"cannot write the feature cache ({type(exc).__name__}: {' '.join(str(exc).split())[:100]}); "
                        "the run goes on without it")
+
+    def _no_room(self, file: str, need: int) -> str | None:
+        """Why ``need`` more bytes may not fit into ``file`` (HDF5 crashes on a failed write, so it is never
+        let near one): the process's file size limit, or less free space than ``need`` + FREE_MARGIN."""
+        import os
+
+        self._bytes[file] = self._bytes.get(file, 0) + need
+        try:
+            import resource
+
+            limit = resource.getrlimit(resource.RLIMIT_FSIZE)[0]
+            if limit != resource.RLIM_INFINITY and self._bytes[file] > limit:
+                return f"it would pass the file size limit of {limit} bytes"
+        except (ImportError, OSError, ValueError):
+            pass
+        try:
+            st = os.statvfs(self.out_dir)
+        except OSError:
+            return None
+        if st.f_bavail * st.f_frsize < need + FREE_MARGIN:
+            return f"less than {(need + FREE_MARGIN) >> 20} MB free"
+        return None
 
     def _file(self, file: str):
         if file not in self._open:
@@ -276,6 +303,8 @@ class CacheWriter:
 
         if not final.is_file():
             return
+        if (why := self._no_room(file, final.stat().st_size)):
+            raise OSError(why)
         try:
             with h5py.File(final, "r") as old:
                 groups = []
