@@ -36,14 +36,14 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
 from fviz.data.pair import Pair
 from fviz.errors import FvizError
 from fviz.estimators.base import Estimate, EstimateFn, run_estimator
-from fviz.estimators.features import FeatureCache, FeatureConfig, Matches, match, user_matches
+from fviz.estimators.features import FeatureCache, FeatureConfig, Features, Matches, match, user_matches
 from fviz.geometry import (
     nearest_rotation,
     NORMS,
@@ -279,8 +279,10 @@ def evaluate_pair(
     inlier_threshold_px: float = 1.0,
     cache: FeatureCache | None = None,
     timeout: float | None = None,
+    matcher: Callable[[Features, Features], Matches] | None = None,
 ) -> PairResult:
-    """Detect, match, run every estimator (isolated, at most ``timeout`` s each: see
+    """Detect, match (``matcher``, default :func:`fviz.estimators.features.match`; a run's may reuse cached
+    matches), run every estimator (isolated, at most ``timeout`` s each: see
     :func:`fviz.estimators.base.run_estimator`), and score it against the ground truth."""
     if norm not in NORMS:
         raise FvizError(f"--norm {norm!r}: choose one of {', '.join(NORMS)}")
@@ -293,7 +295,7 @@ def evaluate_pair(
     else:
         fa, fb = cache.get_pair(pair.id.key_a, pair.image_a, pair.id.key_b, pair.image_b)
         t1 = time.perf_counter()
-        m = match(fa, fb, features)
+        m = matcher(fa, fb) if matcher is not None else match(fa, fb, features)
         n_keypoints = (len(fa.keypoints), len(fb.keypoints))
     t2 = time.perf_counter()
     eval_mask, evaluation, eval_points = evaluation_points(pair, m, eval_threshold_px)

@@ -205,9 +205,14 @@ def run_command(fn: Callable[..., None]) -> Callable[..., None]:
 
 def print_outcome(outcome, what: str = "eval") -> None:
     """One summary line and the report paths; on an interrupted run, how to finish it (exit 130)."""
+    from fviz.run.hloc_cache import FEATURES_FILE
+
     err = sys.stderr
     print(f"{what}: {outcome.total} pairs ({outcome.reused} already done, {outcome.computed} evaluated now, "
-          f"{outcome.failed} failed, {outcome.detections} feature detections) -> {outcome.out_dir}", file=err)
+          f"{outcome.failed} failed, {outcome.detections} feature detections, {outcome.cached_features} images' "
+          f"features read from the run's {FEATURES_FILE}) -> {outcome.out_dir}", file=err)
+    for note, n in outcome.cache_notes.items():
+        print(f"note: {outcome.out_dir}/{note}" + (f" ({n} times)" if n > 1 else ""), file=err)
     for path in outcome.paths.values():
         print(f"  {path}", file=err)
     missing = outcome.total - outcome.reused - outcome.computed

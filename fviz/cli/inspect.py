@@ -148,6 +148,10 @@ def pair(
     user = dict(image_a=image_a, image_b=image_b, K=K, K_a=K_a, K_b=K_b, T_ab=T_ab, F_gt=F_gt, pairs=pairs, images=images,
                 index=index, colmap=colmap, min_shared=min_shared, matches=matches, gt_matches=gt_matches)
     p = load_pair(kitti_root, sequence, drive, frame, pair_kind, step, cams, synthetic, seed, user)
+    from fviz.estimators.base import missing_K
+
+    if (why := next((w for n, fn in ests if (w := missing_K(n, fn, p))), None)) is not None:
+        raise FvizError(why)
     result = evaluate_pair(p, ests, opts.feature_config(), norm, eval_threshold, threshold, timeout=estimator_timeout)
     from fviz.diagnose import gt_suspect_note
 

@@ -217,12 +217,29 @@ class SuperGlueReader:
 # ------------------------------------------------------------------------------ hloc h5
 
 
+def hloc_name(pair, v: str) -> str:
+    """The name fviz gives image ``v`` ("a" or "b") in hloc files (a run's feature cache): the source's name of
+    the image (relative to --images), else its file's path relative to the source's root (KITTI:
+    ``odometry/dataset/sequences/00/image_0/000003.png``), else the frame's key (synthetic)."""
+    pid = pair.id
+    named, path = getattr(pid, f"image_{v}"), pair.extra.get(f"path_{v}")
+    if named:
+        return named
+    if path and pid.root:
+        try:
+            return Path(path).resolve().relative_to(Path(pid.root).resolve()).as_posix()
+        except ValueError:
+            pass
+    return getattr(pid, f"key_{v}")
+
+
 def _candidates(pair, v: str) -> list[str]:
-    """Names an image may have in an hloc file: the source's name, then the path's tails (KITTI: image_0/000003.png, ...)."""
+    """Names an image may have in an hloc file: fviz's own (:func:`hloc_name`), the source's name, then the
+    path's tails (KITTI: image_0/000003.png, ...)."""
     named = getattr(pair.id, f"image_{v}")
     parts = Path(pair.extra.get(f"path_{v}", named)).parts
     tails = ["/".join(parts[i:]) for i in range(len(parts))]
-    return list(dict.fromkeys([n for n in [named, *reversed(tails[-4:])] if n]))
+    return list(dict.fromkeys([n for n in [hloc_name(pair, v), named, *reversed(tails[-4:])] if n]))
 
 
 def names_to_pair(name0: str, name1: str, separator: str = "/") -> str:

@@ -48,6 +48,15 @@ class Estimate:
 DEFAULT_TIMEOUT_S = 600.0
 
 
+def missing_K(name: str, fn: EstimateFn, pair) -> str | None:
+    """Why estimator ``name`` cannot run on ``pair``: it needs the cameras' intrinsics (``fn.needs_K``, e.g.
+    ``poselib-E``, ``ahead``) and the pair has none; None when it can."""
+    if not getattr(fn, "needs_K", False) or pair.has_K:
+        return None
+    return (f"{name} needs the cameras' intrinsics K, which this pair lacks: give --K (or --K-a and --K-b), "
+            "or use a source with intrinsics (KITTI, a pairs file with K, a COLMAP model)")
+
+
 def _isolated_call(fn: EstimateFn, args: tuple, timeout: float) -> tuple[str, Any]:
     """("ok", what fn returned), ("raised", the exception) or ("timeout", None): fn runs in a thread of
     its own (torch's grad mode carried over), its stdout sent to stderr. A Ctrl-C reaches the caller."""
@@ -79,6 +88,8 @@ def run_estimator(name: str, fn: EstimateFn, pair, x_a: np.ndarray, x_b: np.ndar
     from fviz.geometry import is_valid
 
     timeout = DEFAULT_TIMEOUT_S if timeout is None else timeout
+    if (why := missing_K(name, fn, pair)) is not None:
+        return Estimate(name, None, None, 0.0, why)
     args = (copy.deepcopy(pair), np.array(x_a, copy=True), np.array(x_b, copy=True))
     t0 = time.perf_counter()
     kind, out = _isolated_call(fn, args, timeout)

@@ -24,6 +24,9 @@ def ahead(pair, x_a: np.ndarray, x_b: np.ndarray) -> np.ndarray:
     return fundamental_from_motion(pair.K_a, pair.K_b, np.eye(3), np.array([0.0, 0.0, 1.0]))
 
 
+ahead.needs_K = True  # see fviz.estimators.base.missing_K
+
+
 def mean_fundamental(Fs: Iterable[np.ndarray]) -> np.ndarray:
     """The mean of F matrices up to scale and sign: each FBN-normalized and sign-aligned with the first,
     averaged, made rank 2 and normalized again."""

@@ -88,6 +88,7 @@ def colmap_fundamental(pair, x_a: np.ndarray, x_b: np.ndarray, cfg: RobustConfig
 
 
 METHODS = {"poselib": poselib_fundamental, "poselib-E": poselib_essential, "colmap": colmap_fundamental}
+NEEDS_K = frozenset({"poselib-E"})  # COLMAP's and PoseLib's F are uncalibrated: they run without K
 
 
 def external(name: str, cfg: RobustConfig = RobustConfig()):
@@ -98,6 +99,7 @@ def external(name: str, cfg: RobustConfig = RobustConfig()):
         return method(pair, np.ascontiguousarray(x_a, np.float64), np.ascontiguousarray(x_b, np.float64), cfg)
 
     estimate.__name__ = name
+    estimate.needs_K = name in NEEDS_K  # see fviz.estimators.base.missing_K
     return estimate
 
 

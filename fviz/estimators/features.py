@@ -29,10 +29,11 @@ class FeatureConfig:
 
 @dataclass
 class Features:
-    """keypoints: (N, 2) float64 pixels; descriptors: (N, D)."""
+    """keypoints: (N, 2) float64 pixels; descriptors: (N, D); scores: (N,) the detector's responses, or None."""
 
     keypoints: np.ndarray
     descriptors: np.ndarray | None
+    scores: np.ndarray | None = None
 
 
 @dataclass
@@ -81,7 +82,7 @@ def detect(image: np.ndarray, cfg: FeatureConfig = FeatureConfig()) -> Features:
         keep = np.argsort([-k.response for k in kps])[: cfg.max_keypoints]
         kps, desc = [kps[i] for i in keep], desc[keep]
     pts = np.array([k.pt for k in kps], dtype=np.float64).reshape(-1, 2)
-    return Features(pts, desc)
+    return Features(pts, desc, np.array([k.response for k in kps], dtype=np.float32))
 
 
 def _l2_nearest_two(da: np.ndarray, db: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

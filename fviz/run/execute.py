@@ -16,11 +16,15 @@ from fviz.atomic import WriteError
 from fviz.errors import FvizError
 from fviz.evaluate import MIN_MATCHES
 from fviz.run.config import MIN_PAIRS_PER_WORKER, RESULTS_FILE, RunConfig, prepare, resolve_estimators
+from fviz.run.hloc_cache import CacheWriter
 from fviz.run.reports import write_reports
 from fviz.run.store import (
     ResultStore, RunOutcome, locked, merge_record, payload_path, read_config, read_records, save_payload,
     write_config,
 )
+
+
+CACHE_FRESH, CACHE_NOTES = "_cache_fresh", "_cache_notes"  # a record's keys the main process takes off
 
 
 def _message(exc: BaseException) -> str:
@@ -41,6 +45,7 @@ class PairEvaluator:
     def __init__(self, config: RunConfig, out_dir: Path, detect_threads: int = 2, batched: tuple[str, ...] = ()):
         from fviz.estimators.features import FeatureCache
         from fviz.diagnose import diagnose
+        from fviz.run.hloc_cache import RunCache
 
         self.config, self.out_dir = config, Path(out_dir)
         self.source = config.selection.source()
@@ -48,6 +53,8 @@ class PairEvaluator:
         self.estimators = self._resolve(config, batched)
         self.features = config.options.feature_config()
         self.cache = FeatureCache(self.features, max_items=config.cache_items(), threads=detect_threads)
+        self.disk = RunCache(self.out_dir, self.features)  # features.h5 / matches.h5 of the run folder
+        self.cached: tuple[list, int, int] = ([], 0, 0)  # the last pair's (new cache entries, features read, matches read)
         self.diagnose = diagnose
 
     def _resolve(self, config: RunConfig, batched: tuple[str, ...]) -> list[tuple[str, Callable]]:
@@ -79,8 +86,11 @@ class PairEvaluator:
 
         pair = self.source.load(pid)
         estimators = [(n, fn) for n, fn in self.estimators if only is None or n in only]
+        matcher = self.disk.prepare(pair, self.cache) if pair.matches is None else None
         result = evaluate_pair(pair, estimators, self.features, self.config.norm, self.config.eval_threshold,
-                               self.config.options.threshold, cache=self.cache, timeout=self.config.estimator_timeout)
+                               self.config.options.threshold, cache=self.cache, timeout=self.config.estimator_timeout,
+                               matcher=matcher)
+        self.cached = self.disk.collect(pair, self.cache) if matcher is not None else ([], 0, 0)
         return pair, result
 
     def record(self, index: int, pid: PairId, only: tuple[str, ...] | None = None) -> dict[str, Any]:
@@ -103,8 +113,12 @@ class PairEvaluator:
             raise
         except Exception as exc:  # one bad pair must not stop the run
             rec["error"] = _message(exc)
-        rec.update(detections=self.cache.misses - misses, seconds=time.perf_counter() - t0,
-                   finished_at=time.time(), worker=os.getpid())
+        fresh, n_features, n_matches = self.cached if rec["result"] is not None else ([], 0, 0)
+        rec.update(detections=self.cache.misses - misses, cached_features=n_features, cached_matches=n_matches,
+                   seconds=time.perf_counter() - t0, finished_at=time.time(), worker=os.getpid())
+        rec[CACHE_FRESH], rec[CACHE_NOTES] = fresh, dict(self.disk.notes)  # for the main process, not results.jsonl
+        self.cached = ([], 0, 0)
+        self.disk.notes.clear()
         return rec
 
     def run_task(self, task: "PairTask") -> tuple[dict[str, Any], dict]:
@@ -719,6 +733,9 @@ def _run(config: RunConfig, out_dir: Path, pool: WorkerPool | None, resume: bool
     outcome = RunOutcome(total=len(pairs), reused=len(pairs) - len(todo), computed=0, interrupted=False, out_dir=out_dir)
 
     def on_record(rec: dict) -> None:
+        writer.add(rec.pop(CACHE_FRESH, []))
+        outcome.cache_notes.update(rec.pop(CACHE_NOTES, {}))
+        outcome.cached_features += rec.get("cached_features", 0)
         if rec["key"] in partial:
             rec = merge_record(next(read_records([partial[rec["key"]]])), rec, config.estimator_names())
         store.append(rec)
@@ -729,6 +746,7 @@ def _run(config: RunConfig, out_dir: Path, pool: WorkerPool | None, resume: bool
 
     if todo:
         _preload_reports()
+    writer = CacheWriter(out_dir)
     with Interrupts() as interrupts:
         with _progress(progress) as bar:
             bar_task = bar.add_task("eval", total=len(pairs), completed=outcome.reused)
@@ -741,6 +759,7 @@ def _run(config: RunConfig, out_dir: Path, pool: WorkerPool | None, resume: bool
                                  f"fviz eval --out-dir {out_dir} --resume") from None
             finally:
                 store.close()
+                outcome.cache_notes.update(dict.fromkeys(writer.close(), 1))
         interrupts.stage, interrupts.raise_from = "reports", 2
         outcome.paths = write_reports(out_dir, config)
         outcome.interrupted = interrupts.count > 0

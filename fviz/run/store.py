@@ -9,6 +9,7 @@ import json
 import os
 import stat
 import sys
+from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterator
@@ -106,7 +107,7 @@ def merge_record(old: dict[str, Any], new: dict[str, Any], order: list[str]) -> 
         **diag_old, "estimators": {**diag_new["estimators"], **diag_old["estimators"]}}
     return {**old, "estimators": names, "result": {**res, "estimators": ests}, "diagnostics": diag,
             "fingerprint": new["fingerprint"], "seconds": old.get("seconds", 0.0) + new.get("seconds", 0.0),
-            **{k: new[k] for k in ("detections", "finished_at", "worker") if k in new}}
+            **{k: new[k] for k in ("detections", "cached_features", "cached_matches", "finished_at", "worker") if k in new}}
 
 
 def record_rows(rec: dict[str, Any], result: PairResult) -> list[dict[str, Any]]:
@@ -533,3 +534,5 @@ class RunOutcome:
     failed: int = 0
     detections: int = 0
     paths: dict[str, Path] = field(default_factory=dict)
+    cached_features: int = 0  # images whose features came from the run folder's features.h5
+    cache_notes: Counter = field(default_factory=Counter)  # why cache entries were ignored -> how many
