@@ -170,12 +170,13 @@ class FeatureCache:
         self._items: dict[str, Features] = {}
         self.hits = self.misses = 0
 
-    def get(self, key: str, image: np.ndarray) -> Features:
+    def get(self, key: str, image) -> Features:
+        """The features of ``image``: an array, or a function giving it (called only to detect)."""
         if key in self._items:
             self.hits += 1
             return self._items[key]
         self.misses += 1
-        return self.put({key: detect(image, self.cfg)})[key]
+        return self.put({key: detect(_array(image), self.cfg)})[key]
 
     def put(self, items: dict[str, Features]) -> dict[str, Features]:
         """Store features, dropping the oldest beyond ``max_items`` (bounded memory)."""
@@ -190,12 +191,14 @@ class FeatureCache:
     def clear(self) -> None:
         self._items.clear()
 
-    def get_pair(self, key_a: str, image_a: np.ndarray, key_b: str, image_b: np.ndarray) -> tuple[Features, Features]:
-        """Both images' features; two missing ones are detected in parallel (OpenCV releases the GIL)."""
+    def get_pair(self, key_a: str, image_a, key_b: str, image_b) -> tuple[Features, Features]:
+        """Both images' features (images as in :meth:`get`); two missing ones are detected in parallel (OpenCV
+        releases the GIL)."""
         if self.threads < 2 or key_a in self._items or key_b in self._items or key_a == key_b:
             return self.get(key_a, image_a), self.get(key_b, image_b)
         from concurrent.futures import ThreadPoolExecutor
 
+        image_a, image_b = _array(image_a), _array(image_b)
         with ThreadPoolExecutor(2) as pool:
             fb = pool.submit(detect, image_b, self.cfg)
             fa = detect(image_a, self.cfg)
@@ -203,3 +206,8 @@ class FeatureCache:
         self.misses += 2
         self.put({key_a: fa, key_b: fb})
         return fa, fb
+
+
+def _array(image) -> np.ndarray:
+    """An image given as an array or as a function returning it (decoded only when needed)."""
+    return image() if callable(image) else image

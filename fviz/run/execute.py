@@ -94,7 +94,7 @@ class PairEvaluator:
             rec["result"] = result.to_dict()
             if result.n_matches < MIN_MATCHES:
                 rec["error"] = f"only {result.n_matches} matches ({MIN_MATCHES} needed)"
-            rec["diagnostics"] = self.diagnose(pair, result)
+            rec["diagnostics"] = self.diagnose(pair, result, two_view=False)  # triage adds it where it lists the pair
             if self.config.full:
                 path = payload_path(self.out_dir, index)
                 save_payload(path, result)
@@ -354,7 +354,7 @@ def _die_with_parent(parent_pid: int) -> None:
         os._exit(1)
 
 
-WORKER_PRELOAD = ("cv2", "fviz.evaluate", "fviz.estimators.classical", "fviz.triage", "fviz.data.kitti")
+WORKER_PRELOAD = ("cv2", "fviz.evaluate", "fviz.estimators.classical", "fviz.diagnose", "fviz.data.kitti")
 DEEP_PRELOAD = ("torch", "fviz.models.predict", "fviz.train.checkpoint")
 
 
