@@ -217,6 +217,9 @@ def speed(root: Path, workers: int, repeat: int) -> None:
     print(f"  fviz eval --workers {workers}:    {m['fviz']:7.2f} s wall, {m['fviz_cpu']:6.2f} s CPU   ({rows[-1]['summary']})")
     print(f"  eval / limit:             {med(to_limit):7.2f}   per round: {', '.join(f'{r:.2f}' for r in to_limit)}   (target <= 1.25)")
     print(f"  eval / plain loop:        {med(to_plain):7.2f}   per round: {', '.join(f'{r:.2f}' for r in to_plain)}")
+    to_sift = [r["fviz_cpu"] / (r["limit"] * workers) for r in rows]
+    print(f"  eval CPU / SIFT CPU:      {med(to_sift):7.2f}   per round: {', '.join(f'{r:.2f}' for r in to_sift)}   "
+          "(all of eval's processes against the limit's SIFT; the wall ratios need a quiet machine, this one less so)")
     print(f"  eval start-up:            {m['startup']:7.2f} s   (launch to its first pair, less the interpreter's own start; target <= 0.3)")
     pp = per_pair_outside_sift(root)
     print(f"  per pair outside SIFT:    {1e3 * (pp['cpu'] - pp['sift']) / pp['pairs']:7.1f} ms CPU   (one process over the schedule: "

@@ -19,6 +19,7 @@ import errno
 import os
 import re
 from dataclasses import dataclass
+import functools
 from functools import cached_property
 from pathlib import Path
 
@@ -256,7 +257,7 @@ def lazy_image(path: Path) -> "np.ndarray | LazyImage":
     if not os.access(path, os.R_OK):
         raise FvizError(f"cannot read image {path} (permission denied)")
     shape = png_shape(path)
-    return read_image(path) if shape is None else LazyImage(lambda: read_image(path), shape)
+    return read_image(path) if shape is None else LazyImage(functools.partial(read_image, path), shape)  # picklable
 
 
 @dataclass
