@@ -1,14 +1,20 @@
 """Benchmark ``fviz eval`` (a script, not a test).
 
-1. Speed: the temporal pairs (step 1) of KITTI sample sequence 00 with SIFT + MAGSAC++, timed as
-   ``fviz eval`` (a subprocess, start-up and report writing included) against a plain OpenCV loop
-   that recomputes the features of both images for every pair (SIFT, BFMatcher knn + ratio test,
-   cv2.findFundamentalMat USAC_MAGSAC), in the same run, 3 alternating rounds. Target: fviz <= 0.3x the
-   plain loop. It also prints the limit of the machine: the summed single-thread SIFT time of the
-   frames divided by the cores (every frame detected once, all cores busy, the rest free).
+1. Speed: the 49 temporal pairs (step 1) of KITTI sample sequence 00 with SIFT (2000) + MAGSAC++, three
+   figures measured in the same round, rounds alternating (``--repeat``):
+   - the plain OpenCV loop: every pair decodes and detects both its images again (SIFT, BFMatcher knn +
+     ratio test, cv2.findFundamentalMat USAC_MAGSAC), one process;
+   - the limit of the machine: single-thread SIFT (``cv2.setNumThreads(1)``, ``detectAndCompute`` only, the
+     50 frames decoded beforehand), summed CPU time divided by the cores (= the workers): every frame detected
+     once, every core busy, nothing else done;
+   - ``fviz eval ... -e magsac`` (a subprocess: start-up and reports included) on the same pairs.
+   Target: eval <= 1.25x the limit (it also prints eval / plain loop). Beside them: eval's start-up (launch to
+   the start of its first pair, less the interpreter's own start) and, once, the CPU per pair outside SIFT
+   (``PairEvaluator`` over the run's frame schedule in one single-threaded process: every task's CPU less
+   its feature detection). fviz runs with cached bytecode (``PYTHONDONTWRITEBYTECODE`` unset), as installed.
 2. Memory: peak RSS (max over the run's processes, ``getrusage(RUSAGE_CHILDREN)`` of a fresh
-   subprocess per size) of ``fviz eval`` on a small and a 10x larger selection: synthetic pairs when
-   ``fviz.data.synthetic`` is there, else KITTI pairs. Target: flat, ratio <= 1.05.
+   subprocess per size) of ``fviz eval`` on a small and a 10x larger selection of synthetic pairs. Target:
+   flat, ratio <= 1.05.
 
     python benchmarks/bench_eval.py [--kitti-root DIR] [--workers N] [--repeat 3] [--small 100 --large 1000] [--skip-memory]
 """
@@ -18,6 +24,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -25,7 +32,31 @@ import time
 from pathlib import Path
 
 PROJECT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(PROJECT))  # this checkout's fviz, wherever the script is started from
 DEFAULT_ROOT = Path(os.environ.get("FVIZ_KITTI_ROOT", PROJECT.parent / "shared" / "data" / "kitti"))
+FRAMES = 50
+SELECTION = ["--sequence", "00", "--pair", "temporal", "--step", "1", "--frames", f"0:{FRAMES}", "-e", "magsac"]
+ENV = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}  # fviz as installed: bytecode cached
+
+
+def frame_paths(root: Path, frames: int = FRAMES) -> list[Path]:
+    """The sample frames of sequence 00, camera 0; exits naming what is missing (cv2.imread would return None)."""
+    images = root / "odometry" / "dataset" / "sequences" / "00" / "image_0"
+    paths = [images / f"{f:06d}.png" for f in range(frames)]
+    missing = [p for p in paths if not p.is_file()]
+    if missing:
+        raise SystemExit(f"bench_eval: {len(missing)} of the {frames} frames missing, e.g. {missing[0]} "
+                         f"(give --kitti-root or $FVIZ_KITTI_ROOT: the KITTI samples, ../shared/data/kitti)")
+    return paths
+
+
+def read_gray(path: Path):
+    import cv2
+
+    img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    if img is None:
+        raise SystemExit(f"bench_eval: cannot decode {path}")
+    return img
 
 
 def cpu_seconds(who) -> float:
@@ -35,19 +66,18 @@ def cpu_seconds(who) -> float:
     return r.ru_utime + r.ru_stime
 
 
-def plain_opencv(root: Path, frames: int, max_keypoints: int = 2000, ratio: float = 0.8) -> tuple[float, float]:
-    """(wall seconds, CPU seconds) of the naive loop: every pair detects both its images again."""
+def plain_opencv(root: Path, max_keypoints: int = 2000, ratio: float = 0.8) -> tuple[float, float]:
+    """(wall seconds, CPU seconds) of the naive loop: every pair decodes and detects both its images again."""
     import resource
 
     import cv2
     import numpy as np
 
-    images = root / "odometry" / "dataset" / "sequences" / "00" / "image_0"
+    paths = frame_paths(root)
     sift, bf = cv2.SIFT_create(nfeatures=max_keypoints), cv2.BFMatcher(cv2.NORM_L2)
     t0, c0 = time.perf_counter(), cpu_seconds(resource.RUSAGE_SELF)
-    for f in range(frames - 1):
-        a = cv2.imread(str(images / f"{f:06d}.png"), cv2.IMREAD_GRAYSCALE)
-        b = cv2.imread(str(images / f"{f + 1:06d}.png"), cv2.IMREAD_GRAYSCALE)
+    for f in range(len(paths) - 1):
+        a, b = read_gray(paths[f]), read_gray(paths[f + 1])
         ka, da = sift.detectAndCompute(a, None)
         kb, db = sift.detectAndCompute(b, None)
         good = [m for m, n in bf.knnMatch(da, db, k=2) if m.distance < ratio * n.distance]
@@ -57,38 +87,17 @@ def plain_opencv(root: Path, frames: int, max_keypoints: int = 2000, ratio: floa
     return time.perf_counter() - t0, cpu_seconds(resource.RUSAGE_SELF) - c0
 
 
-def fviz_eval(args: list[str]) -> tuple[float, float, dict]:
-    """(wall seconds, peak RSS in MiB over the run's processes, {"cpu": CPU seconds of all of them,
-    "summary": fviz's last line}) of one ``fviz eval`` in a fresh subprocess."""
-    code = (
-        "import resource, subprocess, sys, time, json\n"
-        "t0 = time.perf_counter()\n"
-        "p = subprocess.run([sys.executable, '-m', 'fviz', 'eval', *sys.argv[1:]], capture_output=True, text=True)\n"
-        "dt = time.perf_counter() - t0\n"
-        "r = resource.getrusage(resource.RUSAGE_CHILDREN)\n"
-        "print(json.dumps({'rc': p.returncode, 'seconds': dt, 'rss_mib': r.ru_maxrss / 1024,\n"
-        "                  'cpu': r.ru_utime + r.ru_stime, 'err': p.stderr[-2000:]}))\n"
-    )
-    out = subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True, check=True, cwd=PROJECT)
-    res = json.loads(out.stdout)
-    if res["rc"] != 0:
-        raise SystemExit(f"fviz eval failed ({res['rc']}): {res['err']}")
-    line = next((ln for ln in res["err"].splitlines() if ln.startswith("eval:")), "")
-    return res["seconds"], res["rss_mib"], {"summary": line.strip(), "cpu": res["cpu"]}
-
-
-def sift_limit(root: Path, frames: int, max_keypoints: int = 2000) -> float:
-    """Summed single-thread SIFT CPU time (s) of the frames: what no schedule can avoid (each frame once)."""
+def sift_cpu(root: Path, max_keypoints: int = 2000) -> float:
+    """Summed single-thread SIFT CPU time (s) of the frames, decoded beforehand: what no schedule can avoid."""
     import cv2
 
-    images = root / "odometry" / "dataset" / "sequences" / "00" / "image_0"
+    images = [read_gray(p) for p in frame_paths(root)]
     sift = cv2.SIFT_create(nfeatures=max_keypoints)
     threads = cv2.getNumThreads()
     cv2.setNumThreads(1)
     total = 0.0
     try:
-        for f in range(frames):
-            img = cv2.imread(str(images / f"{f:06d}.png"), cv2.IMREAD_GRAYSCALE)
+        for img in images:
             t0 = time.thread_time()  # CPU time: robust to other load on the machine
             sift.detectAndCompute(img, None)
             total += time.thread_time() - t0
@@ -97,35 +106,124 @@ def sift_limit(root: Path, frames: int, max_keypoints: int = 2000) -> float:
     return total
 
 
+def interpreter_seconds(repeat: int = 3) -> float:
+    """Median wall time of ``python -c pass``: the start-up every command pays before its own."""
+    times = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        subprocess.run([sys.executable, "-c", "pass"], check=True, env=ENV)
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times)
+
+
+def fviz_eval(args: list[str], out_dir: Path | None = None) -> tuple[float, float, dict]:
+    """(wall seconds, peak RSS in MiB over the run's processes, {"cpu": CPU seconds of all of them,
+    "summary": fviz's last line, "startup": seconds from launch to the start of the first pair (with
+    ``out_dir``, from its results.jsonl)}) of one ``fviz eval`` in a fresh subprocess."""
+    code = (
+        "import resource, subprocess, sys, time, json\n"
+        "t0, launched = time.perf_counter(), time.time()\n"
+        "p = subprocess.run([sys.executable, '-m', 'fviz', 'eval', *sys.argv[1:]], capture_output=True, text=True)\n"
+        "dt = time.perf_counter() - t0\n"
+        "r = resource.getrusage(resource.RUSAGE_CHILDREN)\n"
+        "print(json.dumps({'rc': p.returncode, 'seconds': dt, 'rss_mib': r.ru_maxrss / 1024, 'launched': launched,\n"
+        "                  'cpu': r.ru_utime + r.ru_stime, 'err': p.stderr[-2000:]}))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True, check=True, cwd=PROJECT, env=ENV)
+    res = json.loads(out.stdout)
+    if res["rc"] != 0:
+        raise SystemExit(f"fviz eval failed ({res['rc']}): {res['err']}")
+    line = next((ln for ln in res["err"].splitlines() if ln.startswith("eval:")), "")
+    info = {"summary": line.strip(), "cpu": res["cpu"], "startup": float("nan")}
+    if out_dir is not None:
+        recs = [json.loads(ln) for ln in (out_dir / "results.jsonl").read_text().splitlines() if ln.strip()]
+        info["startup"] = min(r["finished_at"] - r["seconds"] for r in recs) - res["launched"]
+    return res["seconds"], res["rss_mib"], info
+
+
+PER_PAIR = """
+import json, sys, time
+from pathlib import Path
+import cv2
+import fviz.estimators.features as features
+from fviz.cli.eval import RUN_PARAMS, RunArgs
+from fviz.run.config import prepare
+from fviz.run.execute import FrameSchedule, PairEvaluator, schedule_window
+
+cv2.setNumThreads(1)
+detect, sift = features.detect, [0.0]
+def timed(*a, **k):
+    t0 = time.process_time()
+    try:
+        return detect(*a, **k)
+    finally:
+        sift[0] += time.process_time() - t0
+features.detect = timed
+values = {p.name: p.default for p in RUN_PARAMS}
+values.update(kitti_root=Path(sys.argv[1]), sequence="00", pair_kind=["temporal"], step=["1"], frames="0:%d", estimator=["magsac"])
+config = prepare(RunArgs(values).config(()))
+todo = config.pairs()
+schedule = FrameSchedule(todo, schedule_window(todo, 2))
+evaluator = PairEvaluator(config, Path(sys.argv[2]), detect_threads=1)
+total = 0.0
+while (task := schedule.next_task()) is not None:
+    t0 = time.process_time()
+    rec, kept = evaluator.run_task(task)
+    json.dumps(rec)  # results.jsonl
+    total += time.process_time() - t0
+    schedule.done(task, kept)
+print(json.dumps({"pairs": len(todo), "cpu": total, "sift": sift[0], "detections": evaluator.cache.misses}))
+""" % FRAMES
+
+
+def per_pair_outside_sift(root: Path) -> dict:
+    """CPU seconds per pair outside feature detection, over the run's frame schedule in one single-threaded
+    process (as one worker would, every pair)."""
+    env = {**ENV, "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+    with tempfile.TemporaryDirectory() as tmp:
+        out = subprocess.run([sys.executable, "-c", PER_PAIR, str(root), tmp], capture_output=True, text=True,
+                             cwd=PROJECT, env=env)
+    if out.returncode != 0:
+        raise SystemExit(f"per-pair measurement failed: {out.stderr[-2000:]}")
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
 def speed(root: Path, workers: int, repeat: int) -> None:
     """``repeat`` alternating rounds of: plain loop, fviz eval, single-thread SIFT of every frame."""
-    import statistics
-
-    frames, cores = 50, os.cpu_count() or 1
-    fviz_s, fviz_cpu, plain_s, plain_cpu, limit_s, summary = [], [], [], [], [], ""
-    for _ in range(repeat):
-        wall, cpu = plain_opencv(root, frames)
-        plain_s.append(wall)
-        plain_cpu.append(cpu)
-        with tempfile.TemporaryDirectory() as tmp:
-            wall, _, info = fviz_eval(["--kitti-root", str(root), "--sequence", "00", "--pair", "temporal", "--step", "1",
-                                       "--frames", f"0:{frames}", "-e", "magsac", "--workers", str(workers),
-                                       "--no-progress", "--out-dir", f"{tmp}/run"])
-        fviz_s.append(wall)
-        fviz_cpu.append(info["cpu"])
-        summary = info["summary"]
-        limit_s.append(sift_limit(root, frames) / cores)
     med = statistics.median
-    ratios = [f / p for f, p in zip(fviz_s, plain_s)]
-    load = os.getloadavg()[0]
-    print(f"speed, {frames - 1} temporal pairs of sequence 00, SIFT (2000) + MAGSAC++, {cores} cores, "
-          f"{repeat} alternating rounds (medians; load average {load:.1f} at the end):")
-    print(f"  fviz eval --workers {workers}: {med(fviz_s):7.2f} s wall, {med(fviz_cpu):6.2f} s CPU   ({summary})")
-    print(f"  plain OpenCV loop:     {med(plain_s):7.2f} s wall, {med(plain_cpu):6.2f} s CPU   (features recomputed per pair, one process)")
-    print(f"  ratio fviz / plain:    {med(ratios):7.2f}  per round: {', '.join(f'{r:.2f}' for r in ratios)}   (target <= 0.3)"
-          f";  CPU seconds: {med(fviz_cpu) / med(plain_cpu):.2f}")
-    print(f"  limit (single-thread SIFT of the {frames} frames / {cores} cores): {med(limit_s):.2f} s = "
-          f"{med(limit_s) / med(plain_s):.2f} x plain;  fviz is at {med(fviz_s) / med(limit_s):.2f} x the limit")
+    frame_paths(root)
+    cores = os.cpu_count() or 1
+    with tempfile.TemporaryDirectory() as tmp:  # warm-up: the bytecode of this checkout written once
+        fviz_eval(["--kitti-root", str(root), "--sequence", "00", "--pair", "temporal", "--frames", "0:9", "-e", "magsac",
+                   "--workers", str(workers), "--no-progress", "--out-dir", f"{tmp}/run"])
+    load0 = os.getloadavg()[0]
+    rows: list[dict] = []
+    for _ in range(repeat):
+        wall, cpu = plain_opencv(root)
+        with tempfile.TemporaryDirectory() as tmp:
+            fw, _, info = fviz_eval(["--kitti-root", str(root), *SELECTION, "--workers", str(workers),
+                                     "--no-progress", "--out-dir", f"{tmp}/run"], Path(tmp) / "run")
+        rows.append({"plain": wall, "plain_cpu": cpu, "fviz": fw, "fviz_cpu": info["cpu"],
+                     "limit": sift_cpu(root) / workers, "startup": info["startup"] - interpreter_seconds(),
+                     "summary": info["summary"]})
+    m = {k: med(r[k] for r in rows) for k in rows[0] if k != "summary"}
+    to_limit = [r["fviz"] / r["limit"] for r in rows]
+    to_plain = [r["fviz"] / r["plain"] for r in rows]
+    print(f"speed, {FRAMES - 1} temporal pairs of sequence 00, SIFT (2000) + MAGSAC++, {cores} cores, {workers} workers, "
+          f"{repeat} alternating rounds (medians; load average {load0:.1f} at the start, {os.getloadavg()[0]:.1f} at the end):")
+    print(f"  plain OpenCV loop:        {m['plain']:7.2f} s wall, {m['plain_cpu']:6.2f} s CPU   (decode + features per pair, one process)")
+    print(f"  limit:                    {m['limit']:7.2f} s   (single-thread SIFT of the {FRAMES} decoded frames / {workers} workers)"
+          f" = {m['limit'] / m['plain']:.2f} x plain")
+    print(f"  fviz eval --workers {workers}:    {m['fviz']:7.2f} s wall, {m['fviz_cpu']:6.2f} s CPU   ({rows[-1]['summary']})")
+    print(f"  eval / limit:             {med(to_limit):7.2f}   per round: {', '.join(f'{r:.2f}' for r in to_limit)}   (target <= 1.25)")
+    print(f"  eval / plain loop:        {med(to_plain):7.2f}   per round: {', '.join(f'{r:.2f}' for r in to_plain)}")
+    to_sift = [r["fviz_cpu"] / (r["limit"] * workers) for r in rows]
+    print(f"  eval CPU / SIFT CPU:      {med(to_sift):7.2f}   per round: {', '.join(f'{r:.2f}' for r in to_sift)}   "
+          "(all of eval's processes against the limit's SIFT; the wall ratios need a quiet machine, this one less so)")
+    print(f"  eval start-up:            {m['startup']:7.2f} s   (launch to its first pair, less the interpreter's own start; target <= 0.3)")
+    pp = per_pair_outside_sift(root)
+    print(f"  per pair outside SIFT:    {1e3 * (pp['cpu'] - pp['sift']) / pp['pairs']:7.1f} ms CPU   (one process over the schedule: "
+          f"{pp['cpu']:.2f} s CPU, of it {pp['sift']:.2f} s detection, {pp['detections']} detections; target <= 20)")
 
 
 def memory(root: Path, workers: int, small: int, large: int) -> None:

@@ -1,5 +1,7 @@
 """Per-pair evidence for triage, computed by ``eval`` while the matches are at hand and stored in
 results.jsonl (``diagnostics``): fviz.run imports this module, fviz.triage reads what it wrote.
+The two-view checks (:func:`two_view_evidence`: COLMAP's label, the Bougnoux focals; ~30-40 ms and
+pycolmap's import per pair) are left to triage, which computes them for the pairs it lists.
 
 Thresholds live here, beside the computations that use them; fviz.triage documents the tags.
 
@@ -115,16 +117,19 @@ def _estimator_evidence(pair, r, m, gt_sed: np.ndarray, eval_threshold: float) -
         "homography_fraction": homography_fraction(m.x_a[inl], m.x_b[inl]),
         "gt_agree": float(np.mean(gt_sed[inl] < eval_threshold)) if known else float("nan"),
         "gt_sed_median_inliers": float(np.median(gt_sed[inl])) if known else float("nan"),
-        "focals": focals(pair, r.F),
     }
 
 
-def diagnose(pair, result) -> dict[str, Any]:
+def _fitted(result) -> list:
+    """The estimates of a result that have an F (the ground truth and failures left out)."""
+    return [r for r in result.estimators if r.name != GT_NAME and not r.error]
+
+
+def diagnose(pair, result, two_view: bool = True) -> dict[str, Any]:
     """Evidence for the tags of one evaluated pair (JSON-ready; NaN where undefined), and the
     straight-ahead baseline's median SED on the evaluation matches (``ahead_sed_median``), so that
-    triage can compare every run with it whether or not ``-e ahead`` was given; COLMAP's two-view label of the
-    matches (``two_view``), whether the evaluation matches determine focal lengths through F (``focal_observable``)
-    and, per estimator, its Bougnoux focals (``focals``)."""
+    triage can compare every run with it whether or not ``-e ahead`` was given; with ``two_view`` also
+    :func:`two_view_evidence` (eval leaves it out: triage adds it for the pairs it lists)."""
     from fviz.estimators.baselines import ahead
     from fviz.geometry import symmetric_epipolar_distance
 
@@ -135,7 +140,7 @@ def diagnose(pair, result) -> dict[str, Any]:
     flow = np.linalg.norm(m.x_b - m.x_a, axis=1)
     xa, xb = m.x_a[result.eval_mask], m.x_b[result.eval_mask]
     ahead_sed = symmetric_epipolar_distance(ahead(pair, xa, xb), xa, xb) if pair.has_K else np.zeros(0)
-    return {
+    diag = {
         "n_matches": len(m),
         "baseline_m": float(np.linalg.norm(pair.t)) if pair.t is not None else nan,
         "rotation_deg": float(angle),
@@ -143,11 +148,32 @@ def diagnose(pair, result) -> dict[str, Any]:
         "static_fraction": float(np.mean(flow < STATIC_PX)) if len(m) else float("nan"),
         "rotation_fraction": rotation_fraction(pair, m.x_a, m.x_b) if pair.has_pose else nan,
         "ahead_sed_median": float(np.median(ahead_sed)) if len(ahead_sed) else float("nan"),
-        "two_view": two_view_label(pair, m),
-        "focal_observable": focal_observable(pair, xa, xb),
-        "estimators": {r.name: _estimator_evidence(pair, r, m, gt_sed, result.eval_threshold_px)
-                       for r in result.estimators if r.name != GT_NAME and not r.error},
+        "estimators": {r.name: _estimator_evidence(pair, r, m, gt_sed, result.eval_threshold_px) for r in _fitted(result)},
     }
+    return with_two_view(diag, two_view_evidence(pair, result)) if two_view else diag
+
+
+def two_view_evidence(pair, result) -> dict[str, Any]:
+    """COLMAP's two-view label of the matches (``two_view``), whether the evaluation matches determine the focal
+    lengths through F (``focal_observable``) and, per estimator, its Bougnoux focals (``estimators``: {name:
+    {"focals"}}): the evidence of triage's ``colmap-*`` and ``focal-implausible`` tags."""
+    m = result.matches
+    return {
+        "two_view": two_view_label(pair, m),
+        "focal_observable": focal_observable(pair, m.x_a[result.eval_mask], m.x_b[result.eval_mask]),
+        "estimators": {r.name: {"focals": focals(pair, r.F)} for r in _fitted(result)},
+    }
+
+
+def has_two_view(diag: dict[str, Any] | None) -> bool:
+    """Whether a record's diagnostics already hold :func:`two_view_evidence` (earlier versions of eval stored it)."""
+    return bool(diag) and "two_view" in diag
+
+
+def with_two_view(diag: dict[str, Any], evidence: dict[str, Any]) -> dict[str, Any]:
+    """Diagnostics (:func:`diagnose`) with the two-view evidence merged in (a new dict)."""
+    ests = {name: {**ev, **evidence["estimators"].get(name, {})} for name, ev in diag.get("estimators", {}).items()}
+    return {**diag, **{k: v for k, v in evidence.items() if k != "estimators"}, "estimators": ests}
 
 
 def _fits_matches(name: str) -> bool:
@@ -223,7 +249,7 @@ def gt_suspect_note(pair, result) -> str | None:
     None when the ground truth looks right (or the pair has too few matches to judge)."""
     if not pair.has_gt or result.matches is None or len(result.matches) == 0 or result.eval_mask is None:
         return None
-    suspect = gt_suspect(diagnose(pair, result), result.to_dict()["estimators"])
+    suspect = gt_suspect(diagnose(pair, result, two_view=False), result.to_dict()["estimators"])
     if suspect is None:
         return None
     return (f"{GT_SUSPECT_NOTE}{suspect['why']}; the ground truth's errors here are not the estimators': compare "

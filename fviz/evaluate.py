@@ -293,7 +293,7 @@ def evaluate_pair(
         n_keypoints = pair.matches.n_keypoints or (len(m), len(m))
         t1 = t0
     else:
-        fa, fb = cache.get_pair(pair.id.key_a, pair.image_a, pair.id.key_b, pair.image_b)
+        fa, fb = cache.get_pair(pair.id.key_a, lambda: pair.image_a, pair.id.key_b, lambda: pair.image_b)  # decoded to detect
         t1 = time.perf_counter()
         m = matcher(fa, fb) if matcher is not None else match(fa, fb, features)
         n_keypoints = (len(fa.keypoints), len(fb.keypoints))

@@ -2,7 +2,9 @@
 likely cause of each failure.
 
 Per-pair evidence (:func:`fviz.diagnose.diagnose`) is computed by ``eval`` while the matches are at hand
-and stored in results.jsonl, so triage itself only reads records.
+and stored in results.jsonl, so triage mostly reads records; the two-view checks (``colmap-*``,
+``focal-implausible``: :func:`fviz.diagnose.two_view_evidence`) it computes itself for the pairs it lists,
+which it evaluates again for triage.rrd anyway.
 
 Estimator findings (over the whole run, printed above the pairs):
 
@@ -53,6 +55,8 @@ Pair tags (thresholds are the constants below and in :mod:`fviz.diagnose`):
 - ``focal-implausible``: the ranked estimator's F gives imaginary focal lengths (Bougnoux, PoseLib) or ones
   more than FOCAL_OFF times off K's, on a pair whose matches determine the focals (``focal_observable``
   in :mod:`fviz.diagnose`; never on rectified stereo or forward motion, where no F does).
+  These two are judged on the listed pairs (``--top``) only: their checks cost more than the rest of a
+  pair's evaluation outside feature detection, so eval does not run them on every pair.
 
 There is no tag for an epipole inside the image: on forward motion it holds for every pair.
 """
@@ -418,7 +422,7 @@ def triage_markdown(config, ranked: list[Ranked], top: int, by: str, metric: str
         f"fewer than {MATCHER_MIN_PRECISION:.0%} of the matches lie within 2 px of F_gt or fewer than {MATCHER_MIN_CORRECT} "
         f"within 1 px (matcher), or not (estimator); colmap-*: COLMAP's two-view configuration of the matches; "
         f"focal-implausible: Bougnoux focals of `{by}`'s F imaginary or more than {FOCAL_OFF:g}x off K's, where the "
-        "matches determine them.",
+        "matches determine them (these two judged on the listed pairs only).",
         "",
         f"| rank | pair | {metric} | pose_err_deg | tags |",
         "|---|---|---|---|---|",
@@ -446,8 +450,9 @@ def rank_banner(r: Ranked, by: str, metric: str) -> str:
 def write_triage_recording(path: Path, config, out_dir: Path, shown: list[Ranked], records: dict[int, dict],
                            by: str = "", metric: str = "sed_median") -> Path:
     """triage.rrd: the ``rank`` timeline steps through the worst pairs first, each with inspect's full
-    payload (the pair is evaluated again: estimators are seeded, so the values are the run's); it opens on
-    ``rank`` and its series are plotted per rank."""
+    payload (the pair is evaluated again: estimators are seeded, so the values are the run's; its two-view
+    tags are added to ``shown`` then, see :func:`add_two_view`); it opens on ``rank`` and its series are
+    plotted per rank."""
     import rerun as rr
 
     from fviz.data.pair import PairId
@@ -467,6 +472,7 @@ def write_triage_recording(path: Path, config, out_dir: Path, shown: list[Ranked
             w.rec.set_time(L.RANK_TIMELINE, sequence=r.rank)
             try:
                 pair, result = evaluator.evaluate(PairId(**{k: v for k, v in r.ref.items() if k != "name"}))
+                add_two_view(r, rec, pair, result, by)
                 if (note := gt_suspect_note(pair, result)) is not None:
                     result.notes.insert(0, note)
                 log_pair(w.rec, r.index, pair, result, single_pair=False)
@@ -527,6 +533,18 @@ def run_triage(config, out_dir: str | Path, by: str | None = None, metric: str =
     wanted = {r.index for r in shown}
     records = {rec["index"]: rec for rec in store.records() if rec["index"] in wanted}
     source = config.selection.source()
+    rrd = write_triage_recording(out_dir / TRIAGE_RRD, config, out_dir, shown, records, by, metric)  # tags the shown
     md = write_text(out_dir / TRIAGE_FILE, triage_markdown(config, ranked, top, by, metric, source, findings, by_reason))
-    rrd = write_triage_recording(out_dir / TRIAGE_RRD, config, out_dir, shown, records, by, metric)
     return TriageOutcome(ranked, md, rrd, outcome, by, findings)
+
+
+def add_two_view(r: Ranked, rec: dict[str, Any], pair, result, by: str) -> None:
+    """Complete a listed pair's record with the two-view evidence eval leaves out (on the pair evaluated again:
+    the same matches, estimators seeded) and tag it again (``colmap-*``, ``focal-implausible``)."""
+    from fviz.diagnose import has_two_view, two_view_evidence, with_two_view
+
+    diag = rec.get("diagnostics")
+    if not diag or has_two_view(diag) or result.matches is None or result.eval_mask is None:
+        return
+    rec["diagnostics"] = with_two_view(diag, two_view_evidence(pair, result))
+    r.tags = tag_pair(rec, by)

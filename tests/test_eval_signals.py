@@ -141,7 +141,8 @@ def test_a_hanging_estimator_is_abandoned_at_the_second_interrupt(kitti_root, tm
     assert proc.wait(timeout=120) == 130
     text = err.read_text()
     assert "stopping after the pairs in flight" in text and "abandoning" in text and "Traceback" not in text
-    done = [json.loads(line) for line in open(tmp_path / "run" / "results.jsonl")]
+    results = tmp_path / "run" / "results.jsonl"  # on a loaded machine the other pair may not have finished either
+    done = [json.loads(line) for line in open(results)] if results.is_file() else []
     assert "odometry/00/temporal/f000002c0-f000003c0" not in {r["key"] for r in done}
     assert {r["name"] for r in read_csv(tmp_path / "run" / "metrics.csv")} == {r["key"] for r in done}
     poll(lambda: not any(alive(p) for p in children_before), what="the workers to exit")

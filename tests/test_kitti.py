@@ -218,3 +218,24 @@ def test_mixed_gray_colour_pair_is_evaluated_in_gray_and_says_so(odometry):
                           "use --cams 0,1 or 2,3 for a pair of one kind"]
     med, inliers = inlier_median_sed(pair)
     assert inliers > 200 and med < 0.5
+
+
+def test_a_pair_decodes_its_images_only_when_read(odometry, kitti_root):
+    """A KITTI pair knows its image sizes from the PNG headers; the pixels are decoded on the first read (the
+    same as OpenCV's), and not at all where the features of both frames are at hand (a run's other pairs)."""
+    from fviz.data.pair import LazyImage
+    from fviz.estimators import get_estimator
+    from fviz.estimators.features import FeatureCache
+    from fviz.evaluate import evaluate_pair
+
+    pair = odometry.pair(5, "temporal")
+    assert isinstance(pair.__dict__["image_a"], LazyImage) and pair.size_a == pair.size_b == (1241, 376)
+    path = kitti_root / "odometry/dataset/sequences/00/image_0/000005.png"
+    np.testing.assert_array_equal(pair.image_a, cv2.imread(str(path), cv2.IMREAD_UNCHANGED))
+    assert not isinstance(pair.__dict__["image_a"], LazyImage) and isinstance(pair.__dict__["image_b"], LazyImage)
+
+    fresh, cache = odometry.pair(5, "temporal"), FeatureCache(FeatureConfig())
+    cache.put({pair.id.key_a: detect(pair.image_a), pair.id.key_b: detect(pair.image_b)})
+    result = evaluate_pair(fresh, [("magsac", get_estimator("magsac"))], cache=cache)
+    assert result.n_matches > 100 and cache.misses == 0
+    assert all(isinstance(fresh.__dict__[k], LazyImage) for k in ("image_a", "image_b"))

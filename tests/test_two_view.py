@@ -8,13 +8,13 @@ import numpy as np
 import pytest
 
 from fviz.data.pair import Pair, PairId
-from fviz.diagnose import diagnose, focal_observable, focals
+from fviz.diagnose import diagnose, focal_observable, focals, has_two_view
 from fviz.estimators import get_estimator
 from fviz.estimators.external import bougnoux_focals
 from fviz.estimators.features import detect, match
 from fviz.evaluate import evaluate_pair
 from fviz.geometry import fundamental_from_motion
-from fviz.triage import tag_pair
+from fviz.triage import Ranked, add_two_view, tag_pair
 
 K = np.array([[718.856, 0.0, 607.19], [0.0, 718.856, 185.22], [0.0, 0.0, 1.0]])
 
@@ -113,3 +113,17 @@ def test_no_blame_where_the_ground_truth_is_suspect(odometry):
     rec = _record(odometry.pair(8, "temporal"), ["magsac", "8point"])
     tags = dict(tag_pair(rec, "8point"))
     assert "gt-suspect" in tags and not {"matcher", "estimator"} & set(tags), tags
+
+
+def test_eval_leaves_the_two_view_checks_to_triage_which_tags_the_pairs_it_lists(planar):
+    """eval's diagnostics lack COLMAP's label and the focals (their cost is per pair); triage adds them for a
+    listed pair from the pair evaluated again, with the same tags as the full diagnostics give."""
+    result = evaluate_pair(planar, [("magsac", get_estimator("magsac"))])
+    rec = {"error": None, "result": result.to_dict(), "diagnostics": diagnose(planar, result, two_view=False)}
+    assert not has_two_view(rec["diagnostics"]) and "focals" not in rec["diagnostics"]["estimators"]["magsac"]
+    listed = Ranked(0, 0, "planar", 0.0, False, tag_pair(rec, "magsac"))
+    assert "colmap-planar" not in [t for t, _ in listed.tags]
+    add_two_view(listed, rec, planar, result, "magsac")
+    assert rec["diagnostics"]["two_view"] == "planar" and len(rec["diagnostics"]["estimators"]["magsac"]["focals"]) == 2
+    full = {**rec, "diagnostics": diagnose(planar, result)}
+    assert [t for t, _ in listed.tags] == [t for t, _ in tag_pair(full, "magsac")] and "colmap-planar" in dict(listed.tags)

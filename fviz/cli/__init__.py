@@ -77,7 +77,9 @@ for _typer in (app, inspect_app):
 
 def main() -> None:
     from fviz.errors import FvizError, Interrupted
+    from fviz.prestart import prestart, take
 
+    prestart(sys.argv[1:])  # eval / triage: workers import while the options are parsed
     try:
         app()
     except FvizError as exc:
@@ -86,3 +88,5 @@ def main() -> None:
     except KeyboardInterrupt:  # outside any command (argument parsing, start-up)
         print(f"interrupted: {INTERRUPTED}", file=sys.stderr)
         sys.exit(130)
+    finally:
+        take(0)  # workers no run took (--help, a bad flag): they ignore SIGTERM, so multiprocessing could not end them

@@ -19,12 +19,13 @@ import errno
 import os
 import re
 from dataclasses import dataclass
+import functools
 from functools import cached_property
 from pathlib import Path
 
 import numpy as np
 
-from fviz.data.pair import Pair, PairId
+from fviz.data.pair import LazyImage, Pair, PairId
 from fviz.errors import FvizError
 from fviz.geometry import fundamental_from_projections
 
@@ -229,6 +230,36 @@ def oxts_camera_poses(oxts_dir: Path, date_dir: Path, num_frames: int) -> np.nda
     return poses
 
 
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def png_shape(path: Path) -> tuple[int, ...] | None:
+    """The shape :func:`read_image` gives an 8- or 16-bit gray or RGB PNG, from its header alone ((H, W) or
+    (H, W, 3)); None for any other file (read it whole)."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(26)
+    except OSError:
+        return None
+    if len(head) < 26 or head[:8] != PNG_SIGNATURE or head[12:16] != b"IHDR":
+        return None
+    width, height = int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
+    depth, colour = head[24], head[25]
+    if width == 0 or height == 0 or depth not in (8, 16) or colour not in (0, 2):  # gray, RGB
+        return None
+    return (height, width) if colour == 0 else (height, width, 3)
+
+
+def lazy_image(path: Path) -> "np.ndarray | LazyImage":
+    """:func:`read_image` of ``path`` deferred to the first read of the pixels (a PNG whose header gives its
+    shape), else read now. A missing or unreadable file is an error now either way."""
+    check_file(path, "image")
+    if not os.access(path, os.R_OK):
+        raise FvizError(f"cannot read image {path} (permission denied)")
+    shape = png_shape(path)
+    return read_image(path) if shape is None else LazyImage(functools.partial(read_image, path), shape)  # picklable
+
+
 @dataclass
 class KittiSequence:
     """One odometry sequence or one raw drive: frames, cameras, poses, and pairs."""
@@ -390,10 +421,10 @@ class KittiSequence:
     def load(self, pid: PairId) -> Pair:
         K_a, K_b, R, t, F = self.ground_truth(pid)
         path_a, path_b = self.image_path(pid.cam_a, pid.frame_a), self.image_path(pid.cam_b, pid.frame_b)
-        image_a, image_b = read_image(path_a), read_image(path_b)
+        image_a, image_b = lazy_image(path_a), lazy_image(path_b)  # decoded if features are detected
         notes = []
         if image_a.ndim != image_b.ndim:
-            image_a, image_b, note = _as_gray(image_a, image_b, pid)
+            image_a, image_b, note = _as_gray(read_image(path_a), read_image(path_b), pid)
             notes.append(note)
         if image_a.shape[:2] != image_b.shape[:2]:
             raise FvizError(

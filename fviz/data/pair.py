@@ -80,11 +80,25 @@ class PairId:
         return cls(**{k: v for k, v in d.items() if k != "name"})
 
 
+class LazyImage:
+    """An image not decoded yet (a source's promise): ``load()`` decodes it, ``shape`` is known without
+    decoding (from the file's header). A :class:`Pair` decodes it on first access to ``image_a`` / ``image_b``,
+    so a pair whose features are at hand (a run's other pair of that frame detected them) decodes nothing."""
+
+    def __init__(self, load, shape: tuple[int, ...]):
+        self.load, self.shape = load, tuple(shape)
+
+    @property
+    def ndim(self) -> int:
+        return len(self.shape)
+
+
 @dataclass
 class Pair:
     """Two images, their cameras if known and the ground truth if known (``x_b^T F_gt x_a = 0``, pixels).
 
-    image_a, image_b: (H, W) uint8 gray or (H, W, 3) uint8 RGB.
+    image_a, image_b: (H, W) uint8 gray or (H, W, 3) uint8 RGB (a source may give a :class:`LazyImage`: decoded
+    when first read; ``size_a`` / ``size_b`` never decode).
     K_a, K_b: (3, 3) intrinsics or None.  R, t: motion X_b = R X_a + t from camera a to camera b, or None.
     F_gt: (3, 3), unit Frobenius norm, or None (no ground truth: estimators are compared with each other).
     gt_accuracy_px: how far the ground truth itself can be trusted (None when unknown).
@@ -138,11 +152,13 @@ class Pair:
     @property
     def size_a(self) -> tuple[int, int]:
         """(width, height) of image a."""
-        return int(self.image_a.shape[1]), int(self.image_a.shape[0])
+        shape = self.__dict__["image_a"].shape  # a LazyImage's too: no decoding
+        return int(shape[1]), int(shape[0])
 
     @property
     def size_b(self) -> tuple[int, int]:
-        return int(self.image_b.shape[1]), int(self.image_b.shape[0])
+        shape = self.__dict__["image_b"].shape
+        return int(shape[1]), int(shape[0])
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready description (no pixels); what is unknown is None."""
@@ -162,3 +178,22 @@ class Pair:
                 if f"path_{v}" in self.extra:
                     d[f"path_{v}"] = self.extra[f"path_{v}"]
         return d
+
+
+def _decoded_on_read(name: str) -> property:
+    """``Pair.<name>``: the array, a LazyImage decoded (once) when first read."""
+
+    def get(self) -> np.ndarray:
+        value = self.__dict__[name]
+        if isinstance(value, LazyImage):
+            value = self.__dict__[name] = value.load()
+        return value
+
+    def set_(self, value) -> None:
+        self.__dict__[name] = value
+
+    return property(get, set_, doc=f"{name}: (H, W) or (H, W, 3) uint8, decoded on first read")
+
+
+Pair.image_a = _decoded_on_read("image_a")
+Pair.image_b = _decoded_on_read("image_b")

@@ -15,6 +15,7 @@ matches come best first (ascending descriptor distance), the order PROSAC needs.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -123,6 +124,7 @@ def magsac(x_a, x_b, cfg: RobustConfig):
     return None if F is None else (F, mask.ravel().astype(bool))
 
 
+@functools.cache
 def _methods():
     import cv2
 
@@ -137,11 +139,13 @@ def _methods():
 
 
 def classical(name: str, cfg: RobustConfig = RobustConfig()):
-    """An estimator (pair, x_a, x_b) -> (F, inliers) for one of ``MIN_MATCHES``' names."""
-    method = _methods()[name]
+    """An estimator (pair, x_a, x_b) -> (F, inliers) for one of ``MIN_MATCHES``' names (OpenCV is imported at
+    the first estimate: a run validates its estimators in the main process, which never estimates)."""
+    if name not in MIN_MATCHES:
+        raise KeyError(name)
 
     def estimate(pair, x_a, x_b):
-        return method(np.ascontiguousarray(x_a, np.float64), np.ascontiguousarray(x_b, np.float64), cfg)
+        return _methods()[name](np.ascontiguousarray(x_a, np.float64), np.ascontiguousarray(x_b, np.float64), cfg)
 
     estimate.__name__ = name
     return estimate

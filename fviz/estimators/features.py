@@ -96,7 +96,8 @@ def _l2_nearest_two(da: np.ndarray, db: np.ndarray) -> tuple[np.ndarray, np.ndar
     SIFT descriptors are integers <= 255 whose squared norms are ~512^2, so every partial sum is an
     integer below 2^24 and float32 holds it exactly, in any summation order: the distances, hence the
     matches, equal OpenCV's. Row reductions run along the contiguous axis; the column minima are an
-    element-wise minimum over rows (no strided arg-min).
+    element-wise minimum over rows (no strided arg-min), taken twice: with and without each row's nearest,
+    which finds the columns whose minimum several rows reach (no pass comparing every entry).
     """
     n_a, dim = da.shape
     qa = np.empty((n_a, dim + 2), np.float32)
@@ -112,16 +113,20 @@ def _l2_nearest_two(da: np.ndarray, db: np.ndarray) -> tuple[np.ndarray, np.ndar
     first = d2[rows, best]
     col_min = d2.min(0)
     mutual = first == col_min[best]
-    at_min = np.equal(d2, col_min, out=np.empty(d2.shape, bool)).view(np.uint8)
-    ties = np.flatnonzero(at_min.sum(0, dtype=np.uint16) > 1)  # columns whose minimum several rows reach
-    if len(ties):
-        lowest = np.array([np.flatnonzero(d2[:, j] == col_min[j])[0] for j in ties])
-        back = np.full(len(db), -1)
-        back[ties] = lowest
-        tied = back[best] >= 0
-        mutual[tied] &= back[best[tied]] == rows[tied]
     d2[rows, best] = np.inf  # the second nearest is the nearest of the rest
     second = d2.min(1)
+    # A column's minimum reached by several rows (ties): by several rows whose nearest it is (``owners``), or
+    # also by a row off its own nearest (the column's minimum without the nearest entries equals it).
+    owners = np.bincount(best[mutual], minlength=len(db))
+    ties = np.flatnonzero((owners > 1) | ((owners > 0) & (d2.min(0) == col_min)))
+    if len(ties):
+        back = np.full(len(db), -1)
+        for j in ties:  # the lowest row reaching the minimum, as OpenCV's cross-check keeps
+            own = rows[mutual & (best == j)]
+            other = np.flatnonzero(d2[:, j] == col_min[j])
+            back[j] = min(own[0], other[0]) if len(other) else own[0]
+        tied = back[best] >= 0
+        mutual[tied] &= back[best[tied]] == rows[tied]
     return best, np.sqrt(np.maximum(first, 0)), np.sqrt(np.maximum(second, 0)), mutual  # (rounding of non-integer descriptors)
 
 
@@ -171,12 +176,13 @@ class FeatureCache:
         self._items: dict[str, Features] = {}
         self.hits = self.misses = 0
 
-    def get(self, key: str, image: np.ndarray) -> Features:
+    def get(self, key: str, image) -> Features:
+        """The features of ``image``: an array, or a function giving it (called only to detect)."""
         if key in self._items:
             self.hits += 1
             return self._items[key]
         self.misses += 1
-        return self.put({key: detect(image, self.cfg)})[key]
+        return self.put({key: detect(_array(image), self.cfg)})[key]
 
     def put(self, items: dict[str, Features]) -> dict[str, Features]:
         """Store features, dropping the oldest beyond ``max_items`` (bounded memory)."""
@@ -191,12 +197,14 @@ class FeatureCache:
     def clear(self) -> None:
         self._items.clear()
 
-    def get_pair(self, key_a: str, image_a: np.ndarray, key_b: str, image_b: np.ndarray) -> tuple[Features, Features]:
-        """Both images' features; two missing ones are detected in parallel (OpenCV releases the GIL)."""
+    def get_pair(self, key_a: str, image_a, key_b: str, image_b) -> tuple[Features, Features]:
+        """Both images' features (images as in :meth:`get`); two missing ones are detected in parallel (OpenCV
+        releases the GIL)."""
         if self.threads < 2 or key_a in self._items or key_b in self._items or key_a == key_b:
             return self.get(key_a, image_a), self.get(key_b, image_b)
         from concurrent.futures import ThreadPoolExecutor
 
+        image_a, image_b = _array(image_a), _array(image_b)
         with ThreadPoolExecutor(2) as pool:
             fb = pool.submit(detect, image_b, self.cfg)
             fa = detect(image_a, self.cfg)
@@ -204,3 +212,8 @@ class FeatureCache:
         self.misses += 2
         self.put({key_a: fa, key_b: fb})
         return fa, fb
+
+
+def _array(image) -> np.ndarray:
+    """An image given as an array or as a function returning it (decoded only when needed)."""
+    return image() if callable(image) else image

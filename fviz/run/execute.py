@@ -15,6 +15,7 @@ from fviz.data.pair import PairId
 from fviz.atomic import WriteError
 from fviz.errors import FvizError
 from fviz.evaluate import MIN_MATCHES
+from fviz.prestart import WORKER_PRELOAD
 from fviz.run.config import MIN_PAIRS_PER_WORKER, RESULTS_FILE, RunConfig, prepare, resolve_estimators
 from fviz.run.hloc_cache import CacheWriter
 from fviz.run.reports import write_reports
@@ -104,7 +105,7 @@ class PairEvaluator:
             rec["result"] = result.to_dict()
             if result.n_matches < MIN_MATCHES:
                 rec["error"] = f"only {result.n_matches} matches ({MIN_MATCHES} needed)"
-            rec["diagnostics"] = self.diagnose(pair, result)
+            rec["diagnostics"] = self.diagnose(pair, result, two_view=False)  # triage adds it where it lists the pair
             if self.config.full:
                 path = payload_path(self.out_dir, index)
                 save_payload(path, result)
@@ -368,7 +369,6 @@ def _die_with_parent(parent_pid: int) -> None:
         os._exit(1)
 
 
-WORKER_PRELOAD = ("cv2", "fviz.evaluate", "fviz.estimators.classical", "fviz.triage", "fviz.data.kitti")
 DEEP_PRELOAD = ("torch", "fviz.models.predict", "fviz.train.checkpoint")
 
 
@@ -422,25 +422,22 @@ class WorkerPool:
     and is replaced; all of them die with the main process."""
 
     def __init__(self, n: int, preload: tuple[str, ...] = WORKER_PRELOAD):
-        import multiprocessing as mp
+        from fviz import prestart
 
-        self.ctx = mp.get_context("spawn")
         self.preload = preload
         self.setup: tuple | None = None
         self.tasks: dict[int, PairTask] = {}  # worker slot -> its running task
-        self.workers = [self._start() for _ in range(n)]
+        self.workers = prestart.take(n)  # those the command line started (fviz.prestart; a deep model loads later)
+        self.workers += [self._start() for _ in range(n - len(self.workers))]
         self._ready = [False] * n
 
     def __len__(self) -> int:
         return len(self.workers)
 
     def _start(self):
-        parent, child = self.ctx.Pipe()
-        proc = self.ctx.Process(target=_worker_main, args=(child, os.getpid(), self.preload), daemon=True,
-                                name="fviz-eval-worker")
-        with _single_threaded_children(), _signals_ignored():  # workers start with Ctrl-C ignored
-            proc.start()
-        child.close()
+        from fviz.prestart import spawn_worker
+
+        proc, parent = spawn_worker(self.preload)  # workers start with Ctrl-C ignored
         if self.setup is not None:
             parent.send(self.setup)
         return proc, parent
@@ -507,8 +504,11 @@ class WorkerPool:
 def start_pool(config: RunConfig, workers: int, n_pairs: int) -> WorkerPool | None:
     """Worker processes for a run of ``n_pairs``, started before the run is prepared so that their
     imports overlap the main process's; None when one process does it (see :func:`pool_size`)."""
+    from fviz import prestart
+
     n = pool_size(workers, n_pairs)
     if n <= 1:
+        prestart.take(0)  # those the command line started end here
         return None
     deep = any(name.partition(":")[0] == "deep" for name in config.options.names)
     return WorkerPool(n, WORKER_PRELOAD + (DEEP_PRELOAD if deep else ()))
@@ -582,37 +582,6 @@ def _execute(config: RunConfig, todo: list[tuple[int, PairId]], pool: WorkerPool
                 on_record(rec)
     finally:
         pool.close(kill=abandoned or interrupts.count >= 2 or sys.exc_info()[0] is not None)
-
-
-@contextlib.contextmanager
-def _signals_ignored():
-    """SIGINT and SIGTERM ignored while workers start (spawned processes inherit the disposition)."""
-    import signal
-
-    previous = {sig: signal.signal(sig, signal.SIG_IGN) for sig in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        yield
-    finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
-
-
-THREAD_ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
-
-
-@contextlib.contextmanager
-def _single_threaded_children():
-    """Worker processes inherit one BLAS/OpenMP thread each (one process per core already)."""
-    saved = {k: os.environ.get(k) for k in THREAD_ENV}
-    os.environ.update({k: "1" for k in THREAD_ENV})
-    try:
-        yield
-    finally:
-        for k, v in saved.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
 
 
 def _check_resume(out_dir: Path, config: RunConfig, resume: bool) -> None:

@@ -466,7 +466,7 @@ def write_recording(path: Path, out_dir: Path, config: RunConfig, summary: str =
         if first is not None:
             sizes = (tuple(first["size_a"]), tuple(first["size_b"]))
     values = series_values(result for _, result, _ in iter_rows(out_dir, config))  # the plots' ranges first
-    curves = {key: values[L.metric(key)] for key, *_ in CURVE_METRICS}
+    curves = {key: values.get(L.metric(key), {}) for key, *_ in CURVE_METRICS}  # none before the first pair
     bp = L.blueprint(names, sizes, single_pair=False, ranges=ranges_of_values(values), curves=True, run_summary=True)
     with RecordingWriter(path, "fviz-eval", bp) as w:
         log_static(w.rec, names, series=True, legend=sizes is not None)
