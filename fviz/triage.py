@@ -469,7 +469,7 @@ def write_triage_recording(path: Path, config, out_dir: Path, shown: list[Ranked
                 pair, result = evaluator.evaluate(PairId(**{k: v for k, v in r.ref.items() if k != "name"}))
                 if (note := gt_suspect_note(pair, result)) is not None:
                     result.notes.insert(0, note)
-                log_pair(w.rec, r.index, pair, result, single_pair=False)
+                log_pair(w.rec, r.index, pair, result, single_pair=False, clear_reference=True)
             except Exception:  # the pair failed in eval too: its record says why
                 log_summary_pair(w.rec, r.index, rec, result_from_record(rec, config))
             w.rec.log(TAGS_ENTITY, rr.TextDocument(rank_banner(r, by, metric), media_type="text/markdown"))

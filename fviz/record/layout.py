@@ -24,7 +24,7 @@ Entity paths (``{v}`` is the view, ``a`` or ``b``; ``{e}`` an estimator name, ``
     reference                   (ground truth suspect) the reference F's epipolar lines of a few line matches in
                                 both images (in the root frame: b's shifted by ``offset_b``), thick, in that F's
                                 colour and labelled "REFERENCE"; drawn on the overview over the ground truth's
-                                white lines of the same matches. Empty on a run's pair whose ground truth is fine
+                                white lines of the same matches. Empty on a triage pair whose ground truth is fine
     compare                     (one pair) a bar chart drawn in 2D: per metric one bar per F in its colour
                                 (LineStrips2D), labelled with the F's name and value (Points2D labels)
     pair/metrics                AnyValues: ``estimators`` (names) and one column per metric, in that order

@@ -399,10 +399,11 @@ def _names(result: PairResult) -> list[str]:
 
 
 def log_pair(rec, index: int, pair: Pair, result: PairResult, n_lines: int = 30, colors: Colors | None = None,
-             probe_steps: int = 0, single_pair: bool = True) -> None:
+             probe_steps: int = 0, single_pair: bool = True, clear_reference: bool = False) -> None:
     """Everything of one pair at ``pair`` = index (see :mod:`fviz.record.layout`): images, keypoints,
     lines, epipoles, the summary, the metrics table, and the comparison chart (``single_pair``) or the
-    metric series and motion tracks (runs)."""
+    metric series and motion tracks (runs). The reference lines when the notes say the ground truth is
+    suspect; ``clear_reference`` (a run whose pairs carry that verdict: triage) logs them empty otherwise."""
     import rerun as rr
 
     colors = colors or L.estimator_colors(_names(result))
@@ -445,7 +446,7 @@ def log_pair(rec, index: int, pair: Pair, result: PairResult, n_lines: int = 30,
             marks[v].append((r.name, color, cross.mean(axis=(0, 1)), label, arrows))
     for v in L.VIEWS:
         _log_epipoles(rec, L.epipoles(v), marks[v], not single_pair, sizes[v], scale_ends(sizes[v]) if v == "b" else ())
-    if not single_pair or suspect_reference(result.notes) is not None:
+    if clear_reference or suspect_reference(result.notes) is not None:
         log_reference(rec, pair, result, colors, sub)
     if single_pair:
         log_comparison(rec, result, colors)
@@ -686,8 +687,8 @@ SERIES_PATHS = tuple([L.metric(k) for k in L.SERIES_METRICS] + [L.motion(k) for 
 
 
 def log_legend(rec, colors: Colors, path: str = L.LEGEND, origin=(0.0, 0.0), pitch: float = 24.0) -> None:
-    """One row per F: a bar in its colour and its name beside it (labels white, on Rerun's grey boxes), drawn in
-    2D on the charts' dark background. -> rows of ``pitch`` units from ``origin``."""
+    """One row per F: a bar in its colour and its name beside it (labels white, on Rerun's grey boxes, their
+    points 0.4 rows up: Rerun draws a label below its point), drawn in 2D on the charts' dark background. -> rows of ``pitch`` units from ``origin``."""
     import rerun as rr
 
     x0, y0 = origin
@@ -695,7 +696,7 @@ def log_legend(rec, colors: Colors, path: str = L.LEGEND, origin=(0.0, 0.0), pit
     bars = [[(x0, y0 + i * pitch), (x0 + 40.0, y0 + i * pitch)] for i in range(len(rows))]
     labels = ["ground truth" if n == L.GT else n for n, _ in rows]
     rec.log(path, rr.LineStrips2D(bars, colors=[_rgb(c) for _, c in rows], radii=pitch / 4),
-            rr.Points2D([(x0 + 120.0, y0 + i * pitch) for i in range(len(rows))], radii=0.1, colors=[(255, 255, 255)],
+            rr.Points2D([(x0 + 120.0, y0 + (i - 0.4) * pitch) for i in range(len(rows))], radii=0.1, colors=[(255, 255, 255)],
                         labels=labels, show_labels=True), static=True)
 
 
@@ -823,7 +824,7 @@ def log_reference(rec, pair: Pair, result: PairResult, colors: Colors, sub: np.n
     if n:  # the names: black on Rerun's light label box (text takes its strip's colour), top right of each image
         strips += [np.stack([at, at]) for at in (np.array([0.8 * pair.size_a[0], 22.0]),
                                                   np.array([0.8 * pair.size_b[0], 22.0]) + L.offset_b(pair.size_a))]
-    colors_ = [_rgb(colors[name])] * n + [_rgb(LABEL_ON_PHOTO)] * (len(strips) - n)
+    colors_ = [_rgb(colors[name])] * n + [_rgb(LABEL_ON_PHOTO)] * (len(strips) - n) if n else []
     rec.log(L.REFERENCE, rr.LineStrips2D(strips, colors=colors_ or None, radii=[L.REFERENCE_RADIUS] * n + [0.0] * (len(strips) - n),
                                          labels=[""] * n + [reference_label(name)] * (len(strips) - n) or None,
                                          show_labels=True, draw_order=35.0))
