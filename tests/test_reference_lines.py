@@ -85,3 +85,23 @@ def test_reference_lines_are_the_best_robust_fs_labelled_as_the_reference(inspec
            if not lab and len(s) == 2]
     for seg in a:
         assert min(np.abs(seg - o).max() for o in own) < 1e-3
+
+
+def test_triage_draws_the_reference_on_suspect_ranks_only(kitti_root, tmp_path):
+    """triage.rrd (pairs 5->6 .. 8->9: 7->8 and 8->9 suspect, 5->6 and 6->7 not): at every rank the reference lines are
+    there exactly when its banner tags the pair gt-suspect (empty otherwise: none linger from the rank before)."""
+    out = tmp_path / "run"
+    small = ("--max-keypoints", "400", "--no-progress", "--workers", "1")
+    r = run_fviz("eval", "--kitti-root", kitti_root, "--sequence", "00", "--pair", "temporal", "--frames", "5:10",
+                 "-e", "ransac", "-e", "magsac", *small, "--out-dir", out, timeout=600)
+    assert r.returncode == 0, r.stderr
+    r = run_fviz("triage", "--out-dir", out, "--top", "5", "--by", "ransac", "--no-progress", timeout=600)
+    assert r.returncode == 0, r.stderr
+    rrd = out / "triage.rrd"
+    banners = [t for t in R.column(rrd, L.TRIAGE_TAGS, "TextDocument:text", timeline=L.RANK_TIMELINE)]
+    strips = R.column(rrd, L.REFERENCE, "LineStrips2D:strips", timeline=L.RANK_TIMELINE)
+    suspect = ["**gt-suspect**" in (b[0] if isinstance(b, list) else b) for b in banners]
+    drawn = [len(s) > 0 for s in strips]
+    print(f"ranks: gt-suspect {suspect}, reference lines {drawn}")
+    assert len(banners) == len(strips) == 4 and any(suspect) and not all(suspect)
+    assert drawn == suspect

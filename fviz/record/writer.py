@@ -688,7 +688,8 @@ SERIES_PATHS = tuple([L.metric(k) for k in L.SERIES_METRICS] + [L.motion(k) for 
 
 def log_legend(rec, colors: Colors, path: str = L.LEGEND, origin=(0.0, 0.0), pitch: float = 24.0) -> None:
     """One row per F: a bar in its colour and its name beside it (labels white, on Rerun's grey boxes, their
-    points 0.4 rows up: Rerun draws a label below its point), drawn in 2D on the charts' dark background. -> rows of ``pitch`` units from ``origin``."""
+    points 0.4 rows up: Rerun draws a label below its point), drawn in 2D on the charts' dark background.
+    -> rows of ``pitch`` units from ``origin``."""
     import rerun as rr
 
     x0, y0 = origin
@@ -813,7 +814,7 @@ def log_reference(rec, pair: Pair, result: PairResult, colors: Colors, sub: np.n
 
     name = suspect_reference(result.notes)
     r = None if name is None else result.get(name)
-    strips, labels = [], []
+    strips = []
     if r is not None and not r.error and r.F is not None:
         k = sub[: L.REFERENCE_LINES]
         seg_a, in_a = clip_lines(lines_in_a(r.F, result.matches.x_b[k]), *pair.size_a)
