@@ -252,5 +252,5 @@ def gt_suspect_note(pair, result) -> str | None:
     suspect = gt_suspect(diagnose(pair, result, two_view=False), result.to_dict()["estimators"])
     if suspect is None:
         return None
-    return (f"{GT_SUSPECT_NOTE}{suspect['why']}; the ground truth's errors here are not the estimators': compare "
-            f"with {suspect['reference']}'s tab (reference: {suspect['reference']})")
+    return (f"{GT_SUSPECT_NOTE}{suspect['why']}; the overview draws {suspect['reference']}'s lines as "
+            f"the reference (reference: {suspect['reference']})")

@@ -475,9 +475,10 @@ def write_triage_recording(path: Path, config, out_dir: Path, shown: list[Ranked
                 add_two_view(r, rec, pair, result, by)
                 if (note := gt_suspect_note(pair, result)) is not None:
                     result.notes.insert(0, note)
-                log_pair(w.rec, r.index, pair, result, single_pair=False)
+                log_pair(w.rec, r.index, pair, result, single_pair=False, clear_reference=True)
             except Exception:  # the pair failed in eval too: its record says why
                 log_summary_pair(w.rec, r.index, rec, result_from_record(rec, config))
+                w.rec.log(L.REFERENCE, rr.LineStrips2D([]))  # no reference lines left from the rank before
             w.rec.log(TAGS_ENTITY, rr.TextDocument(rank_banner(r, by, metric), media_type="text/markdown"))
             w.pair_done()
     return path

@@ -102,8 +102,9 @@ def test_match_residuals_match_an_independent_computation(inspected):
 
 def lines_of(entity) -> np.ndarray:
     """The epipolar-line strips of an ``epilines`` entity (its epipole cross left out)."""
-    strips, labels = col(entity, "LineStrips2D:strips"), col(entity, "LineStrips2D:labels")
-    return np.array([s for s, lab in zip(strips, labels) if not lab])  # the cross's two strips name the epipole
+    strips, labels, radii = col(entity, "LineStrips2D:strips"), col(entity, "LineStrips2D:labels"), col(entity, "LineStrips2D:radii")
+    # the cross's two strips are thicker (2 px), the captions and names labelled
+    return np.array([s for s, lab, r in zip(strips, labels, radii) if not lab and r == np.float32(0.9)])
 
 
 def test_epipolar_lines_are_clipped_and_pass_through_the_epipole(inspected):

@@ -127,7 +127,7 @@ def test_one_colour_per_estimator_everywhere(inspected, eval_run):
             line_colors = {rgb(c) for c, radius, _ in strips if radius in (np.float32(0.9), 2.0)}
             assert line_colors == {expected[name]}, (v, name)
             # below image b: an estimator's numbers; under the ground truth's lines the residual scale
-            captions = [label for _, radius, label in strips if radius == 0.0 and label]
+            captions = [label for _, radius, label in strips if radius == 0.0 and label and ": epipole " not in label]
             if v == "a":
                 assert not captions
             elif name == "gt":

@@ -319,3 +319,116 @@ def test_eval_recording_plots_every_estimator_in_its_colour(kitti_root, tmp_path
     for name, color in COLORS.items():
         n = shot.count(color, plots)
         assert n > 100, f"{n} pixels of {name}'s series colour {color}; {shot.context}"
+
+
+# ---------------------------------------------------------------------------------------------- issue 18: legends, reference
+
+
+def legend_bars(rgb: np.ndarray, colors: dict) -> dict[str, tuple[int, int, int, int]]:
+    """The legend view's rows (layout.LEGEND): per series the thick bar in its colour, (x, y, w, h), where one is
+    found (a filled bar 30-150 px wide, 6-30 px high: a series line is thin, a view's white title bar wider)."""
+    import cv2
+
+    out = {}
+    for name, color in colors.items():
+        n, _, st, _ = cv2.connectedComponentsWithStats(near(rgb, color, 40).astype(np.uint8))
+        bars = [tuple(int(v) for v in st[i, :4]) for i in range(1, n)
+                if 30 <= st[i, 2] <= 150 and 6 <= st[i, 3] <= 30 and st[i, 4] >= 0.7 * st[i, 2] * st[i, 3]]
+        if bars:
+            out[name] = max(bars, key=lambda b: b[2] * b[3])
+    return out
+
+
+def legend_stacks(rgb: np.ndarray, colors: dict, outside=None) -> list[list[tuple[str, float, float]]]:
+    """Plot legends drawn over a plot (egui's: a column of small filled swatches, one per series, beside the
+    names): groups of >= 3 series whose compact blobs (5-16 px, at least half filled) sit in one column (x within
+    4 px) less than 150 px apart. ``outside``: a box (x, y, w, h) left out (fviz's own legend view)."""
+    import cv2
+
+    blobs = []
+    for name, color in colors.items():
+        mask = near(rgb, color, 50).astype(np.uint8)
+        if outside is not None:
+            x, y, w, h = outside
+            mask[y: y + h, x: x + w] = 0
+        n, _, st, _ = cv2.connectedComponentsWithStats(mask)
+        blobs += [(name, st[i, 0] + st[i, 2] / 2, st[i, 1] + st[i, 3] / 2) for i in range(1, n)
+                  if 5 <= st[i, 2] <= 16 and 5 <= st[i, 3] <= 16 and st[i, 4] >= 0.5 * st[i, 2] * st[i, 3]]
+    stacks = []
+    for name, x, y in blobs:
+        column = [b for b in blobs if abs(b[1] - x) <= 4 and abs(b[2] - y) < 150]
+        if len({b[0] for b in column}) >= 3:
+            stacks.append(column)
+    return stacks
+
+
+def test_run_legend_covers_no_data(deep_run, tmp_path):
+    """eval.rrd's metrics tab: every series' name is in the legend view (a bar in its colour each, one column, in
+    the recording's order) and the legend's box holds no series line; no plot draws a legend of its own over
+    its data (a column of series swatches, as egui's plot legend draws them)."""
+    colors = L.estimator_colors(["gt", *ESTIMATORS, "deep"])
+    shot = Shot(deep_run / "eval.rrd", tmp_path / "metrics.png", "--tab", "metrics")
+    bars = legend_bars(shot.rgb, colors)
+    print(f"legend bars {bars}")
+    assert set(bars) == set(colors), f"legend rows missing: {set(colors) - set(bars)}; {shot.context}"
+    xs, ys = [b[0] for b in bars.values()], [bars[n][1] for n in colors]
+    assert max(xs) - min(xs) <= 4 and ys == sorted(ys), f"legend rows not one column in order: {bars}; {shot.context}"
+    x0, y0 = min(xs) - 12, min(ys) - 12
+    right, bottom = max(b[0] + b[2] for b in bars.values()) + 12, max(b[1] + b[3] for b in bars.values()) + 12
+    box = (x0, y0, right + 200 - x0, bottom - y0)  # the bars and their names
+    x, y, w, h = column = (x0, y0, right - x0, bottom - y0)  # the bars alone (the names are white text)
+    inside = shot.rgb[y: y + h, x: x + w]
+    lines = {n: int(near(inside, c, 50).sum()) - bars[n][2] * bars[n][3] for n, c in colors.items()}
+    data = {n: shot.count(c) - shot.count(c, box) for n, c in colors.items()}
+    print(f"legend {box}: series pixels among its bars {column} beyond the bars {lines}; outside the legend {data}")
+    assert all(v > 150 for v in data.values()), f"a series is missing from the plots: {data}; {shot.context}"
+    assert all(v < 0.1 * bars[n][2] * bars[n][3] for n, v in lines.items()), \
+        f"series lines over the legend's bars {column}: {lines}; {shot.context}"
+    stacks = legend_stacks(shot.rgb, colors, outside=box)
+    assert not stacks, f"a plot draws its own legend over its data: {stacks[0]}; {shot.context}"
+
+
+def test_suspect_ground_truth_overview_draws_the_reference(kitti_root, odometry, tmp_path):
+    """Pair 7 -> 8 (its ground truth suspect, the reference magsac): the overview draws magsac's lines, in its
+    colour, where the recording's ``reference`` strips lie, on both frames, and labels them; ransac (the other
+    robust F, not the reference) has no lines there."""
+    import json
+
+    from fviz.record import reader as R
+
+    rrd = tmp_path / "suspect.rrd"
+    r = run_fviz("inspect", "pair", "--kitti-root", kitti_root, "--sequence", "00", "--pair", "temporal", "--frame", "7",
+                 "--out", rrd, "--json")
+    assert r.returncode == 0, r.stderr
+    notes = json.loads(r.stdout)["notes"]
+    assert any(n.startswith("gt-suspect: ") and n.endswith("(reference: magsac)") for n in notes), notes
+    pair = odometry.pair(7, "temporal")
+    frames = {"a": to_gray(pair.image_a), "b": to_gray(pair.image_b)}
+    shot = Shot(rrd, tmp_path / "suspect-overview.png")
+    boxes = shot.frames(frames, (0.0, 0.72))
+    strips = [np.asarray(s, float) for s in R.column(rrd, L.REFERENCE, "LineStrips2D:strips")[0]]
+    labels = R.column(rrd, L.REFERENCE, "LineStrips2D:labels")[0]
+    shift = L.offset_b(pair.size_a)
+    for v, box in boxes.items():
+        crop, drawn = overlay(shot.rgb, frames[v], box)
+        ref, other = (int((near(crop, COLORS[n]) & drawn).sum()) for n in ("magsac", "ransac"))
+        scale = box[2] / frames[v].shape[1]
+        mine = [s - (shift if v == "b" else 0) for s, lab in zip(strips, labels)
+                if not lab and (s[:, 1].max() > pair.size_a[1]) == (v == "b")]  # a's lines end above its bottom row
+        hits = total = 0
+        for p, q in mine:  # along each reference line, its colour on screen
+            for t in np.linspace(0.05, 0.95, 19):
+                at = p + t * (q - p)
+                sx, sy = int(box[0] + (at[0] + 0.5) * scale), int(box[1] + (at[1] + 0.5) * scale)
+                hits += shot.count(COLORS["magsac"], (sx - 2, sy - 2, 5, 5)) > 0
+                total += 1
+        print(f"image {v}: {ref} magsac pixels, {other} ransac pixels; {hits} of {total} points along the "
+              f"{len(mine)} reference lines in magsac's colour")
+        assert len(mine) >= 5 and hits > 0.75 * total, f"image {v}: reference lines not drawn ({hits}/{total}); {shot.context}"
+        assert ref > 1500 and other < 0.1 * ref, f"image {v}: magsac {ref} vs ransac {other} pixels; {shot.context}"
+        # its label near the top right of the frame (Rerun draws it just below its point): black text drawn over
+        # the photo (no line, keypoint or line edge is black; elsewhere along that row: 0 or 1 such pixels)
+        lx, ly = int(0.8 * frames[v].shape[1] * scale), int(22 * scale)
+        text = int((drawn & (crop.max(-1) < 70))[ly - 4: ly + 26, lx - 150: lx + 150].sum())
+        print(f"image {v}: {text} black text pixels around ({lx}, {ly}) of the frame")
+        assert text > 100, f"image {v}: no REFERENCE label at ({lx}, {ly}) of the frame ({text} px); {shot.context}"

@@ -21,6 +21,10 @@ Entity paths (``{v}`` is the view, ``a`` or ``b``; ``{e}`` an estimator name, ``
                                 epipole (name and position as hover text); outside the image or at infinity
                                 the cross sits on the border and Arrows2D points towards the epipole
     {v}/epipoles                every F's epipole cross (and arrow) in its colour, for the overview
+    reference                   (ground truth suspect) the reference F's epipolar lines of a few line matches in
+                                both images (in the root frame: b's shifted by ``offset_b``), thick, in that F's
+                                colour and labelled "REFERENCE"; drawn on the overview over the ground truth's
+                                white lines of the same matches. Empty on a triage pair whose ground truth is fine
     compare                     (one pair) a bar chart drawn in 2D: per metric one bar per F in its colour
                                 (LineStrips2D), labelled with the F's name and value (Points2D labels)
     pair/metrics                AnyValues: ``estimators`` (names) and one column per metric, in that order
@@ -161,14 +165,22 @@ COMPARED_METRICS = (
     ("nsgd", "NSGD (FM-Bench)"),
     ("agreement_nsgd", "NSGD to the other estimators (no ground truth)"),
 )
-BAR_WIDTH, BAR_PITCH, BAR_HEAD, BAR_LABEL_X = 300.0, 28.0, 34.0, 450.0
+GT_ONLY_METRICS = ("rot_err_deg", "trans_err_deg", "nsgd")  # need a ground truth; agreement_nsgd is without one
+# one row (a title or a bar) per BAR_PITCH: Rerun's labels are ~18 screen px high, so a row must stay >= 19 px
+BAR_WIDTH, BAR_PITCH, BAR_HEAD, BAR_LABEL_X = 300.0, 30.0, 30.0, 450.0
+LABEL_DROP = 0.5 * BAR_PITCH  # Rerun draws a point's label below the point: the chart's label points sit this much higher
 CDF_H = 70.0  # the residual CDF below the bars
 CHART_BACKGROUND = (32, 32, 36)  # charts and plots: dark, so that the ground truth's white shows in any theme
 
 
-def compare_height(n_bars: int) -> float:
-    """Height of the comparison chart with every metric and ``n_bars`` F's."""
-    return len(COMPARED_METRICS) * (BAR_HEAD + (n_bars + 0.5) * BAR_PITCH) + BAR_HEAD + CDF_H + 30.0
+def compared_metrics(gt: bool) -> tuple[tuple[str, str], ...]:
+    """The comparison chart's metrics with (``gt``) or without a ground truth."""
+    return tuple((k, t) for k, t in COMPARED_METRICS if (k in GT_ONLY_METRICS) == gt or k == "sed_median")
+
+
+def compare_height(n_bars: int, gt: bool = True) -> float:
+    """Height of the comparison chart with the metrics of :func:`compared_metrics` and ``n_bars`` F's."""
+    return len(compared_metrics(gt)) * (BAR_HEAD + (n_bars + 0.5) * BAR_PITCH) + BAR_HEAD + CDF_H + 30.0
 # Metric series of a run (``metrics/{key}``), one per F, with their titles. f_dist is left out: it misranks
 # (README, Metrics).
 SERIES_METRICS = ("sed_median", "rot_err_deg", "trans_err_deg", "nsgd", "epipole_err_deg", "inlier_ratio")
@@ -276,6 +288,11 @@ RUN_SUMMARY = "run/summary"  # runs: the run's standard figures (static)
 CURVES = "curves"  # runs (eval): the cumulative error curves, one 2D chart
 
 
+REFERENCE = "reference"  # the F to trust when the ground truth is suspect: its lines on the overview
+REFERENCE_LINES = 10  # of the ground truth's line matches (the first ones): the reference's lines beside them
+REFERENCE_RADIUS = 1.5  # thicker than every other line (0.9), so that it reads as the one to trust
+
+
 def probe(view: str) -> str:
     return f"{view}/probe"
 
@@ -324,12 +341,13 @@ def overview_tab(names: Sequence[str], sizes, single_pair: bool, gt: bool = True
     import rerun.blueprint as rrb
 
     ref = GT if gt or not names else names[-1]  # without ground truth: the last estimator's (default: magsac)
-    contents = [f"+ {matches(ref)}"] + [f"+ {v}/est/{ref}/**" for v in VIEWS] + [f"+ {epipoles(v)}" for v in VIEWS]
+    contents = ([f"+ {matches(ref)}"] + [f"+ {v}/est/{ref}/**" for v in VIEWS] + [f"+ {epipoles(v)}" for v in VIEWS]
+                + [f"+ {REFERENCE}"])
     title = ("ground truth: residuals (keypoints) and lines (white)" if ref == GT
              else f"no ground truth: {ref}'s residuals (keypoints) and lines")
     images = _images_view(sizes, f"{notice}{title}; every F's epipole", contents)
     chart = rrb.VisualBounds2D(x_range=[-2 * BAR_PITCH, BAR_LABEL_X + 90.0],
-                               y_range=[-BAR_HEAD, compare_height(len(names) + 1)])
+                               y_range=[-BAR_HEAD, compare_height(len(names) + gt, gt)])
     side = [rrb.Spatial2DView(origin=COMPARE, name="comparison (one bar per F, in its colour)", visual_bounds=chart,
                               background=CHART_BACKGROUND)] if single_pair else []
     side.append(rrb.TextDocumentView(origin=SUMMARY, name="summary"))

@@ -263,6 +263,15 @@ def caption_strip(size_b: tuple[int, int], r, result: PairResult) -> tuple:
     return np.stack([at, at]), _rgb(LABEL_ON_PHOTO), 0.0, estimator_caption(r, result)
 
 
+def epipole_name_strip(cross: np.ndarray, label: str, size: tuple[int, int]) -> tuple:
+    """An estimator tab's epipole name as a labelled invisible strip 34 px above its cross (below it near the
+    top edge), kept 130 px inside the sides (the label is ~260 px wide): (strip, colour, radius, label).
+    Rerun writes a label in its strip's colour: black, on its light box, reads on any photo."""
+    at = cross.mean(axis=(0, 1))
+    at = np.array([min(max(at[0], 130.0), size[0] - 130.0), at[1] - 34.0 if at[1] > 50.0 else at[1] + 22.0])
+    return np.stack([at, at]), _rgb(LABEL_ON_PHOTO), 0.0, label
+
+
 SCALE_STEP = 28.0  # one residual bin of the scale below image b
 
 
@@ -347,11 +356,9 @@ def pair_markdown(result: PairResult, probe_steps: int = 0) -> str:
     columns = [c for c in SUMMARY_COLUMNS if any(c[0] in r.metrics for r in result.estimators)] or list(SUMMARY_COLUMNS[:1])
     suspect = [n for n in result.notes if n.startswith(GT_SUSPECT_NOTE)]
     lines = [f"**⚠ ground truth suspect**: {n.removeprefix(GT_SUSPECT_NOTE)}" for n in suspect] + [""] * bool(suspect)  # reader.SUSPECT_BANNER
+    # the table first, so that it shows without scrolling (1600x1000); what it is computed on below it
     lines += [
         f"**{p['name']}**",
-        "",
-        _pair_sentence(result),
-        *precision_lines(result.match_precision),
         "",
         "| F | " + " | ".join(t for _, t in columns) + " | time s |",
         "|---|" + "--:|" * (len(columns) + 1),
@@ -362,7 +369,7 @@ def pair_markdown(result: PairResult, probe_steps: int = 0) -> str:
         else:
             lines.append(f"| {r.name} | " + " | ".join(_fmt(r.metrics.get(k)) for k, _ in columns)
                          + f" | {r.seconds:.2f} |")
-    lines.append("")
+    lines += ["", _pair_sentence(result), *precision_lines(result.match_precision), ""]
     if result.agreement:
         names = result.agreement["names"]
         lines += ["NSGD between the estimators (0 = the same epipolar geometry, FM-Bench's measure):", "",
@@ -392,10 +399,11 @@ def _names(result: PairResult) -> list[str]:
 
 
 def log_pair(rec, index: int, pair: Pair, result: PairResult, n_lines: int = 30, colors: Colors | None = None,
-             probe_steps: int = 0, single_pair: bool = True) -> None:
+             probe_steps: int = 0, single_pair: bool = True, clear_reference: bool = False) -> None:
     """Everything of one pair at ``pair`` = index (see :mod:`fviz.record.layout`): images, keypoints,
     lines, epipoles, the summary, the metrics table, and the comparison chart (``single_pair``) or the
-    metric series and motion tracks (runs)."""
+    metric series and motion tracks (runs). The reference lines when the notes say the ground truth is
+    suspect; ``clear_reference`` (a run whose pairs carry that verdict: triage) logs them empty otherwise."""
     import rerun as rr
 
     colors = colors or L.estimator_colors(_names(result))
@@ -428,13 +436,18 @@ def log_pair(rec, index: int, pair: Pair, result: PairResult, n_lines: int = 30,
             # below image b: the estimator's numbers, or under the ground truth's lines (in every tab) the residual
             # scale; labelled strips of this entity (a Points2D would add its columns to the file)
             extra = [] if v != "b" else residual_scale(sizes[v]) if r.name == L.GT else [caption_strip(sizes[v], r, result)]
+            shown = r.name != L.GT  # an estimator's tab names its epipole: black on a light box above the cross
+            if shown:
+                extra.append(epipole_name_strip(cross, label, sizes[v]))
             _log_marks(rec, L.est(v, r.name, "epilines"), [*seg[inside], *cross, *(x[0] for x in extra)],
                        [color] * (n + 2) + [x[1] for x in extra], [0.9] * n + [2.0, 2.0] + [x[2] for x in extra],
-                       [""] * n + [label, label] + [x[3] for x in extra], arrows, clear=not single_pair,
-                       show_labels=r.name != L.GT)
+                       [""] * n + ["" if shown else label] * 2 + [x[3] for x in extra], arrows, clear=not single_pair,
+                       show_labels=shown)
             marks[v].append((r.name, color, cross.mean(axis=(0, 1)), label, arrows))
     for v in L.VIEWS:
         _log_epipoles(rec, L.epipoles(v), marks[v], not single_pair, sizes[v], scale_ends(sizes[v]) if v == "b" else ())
+    if clear_reference or suspect_reference(result.notes) is not None:
+        log_reference(rec, pair, result, colors, sub)
     if single_pair:
         log_comparison(rec, result, colors)
     else:
@@ -491,7 +504,7 @@ def log_comparison(rec, result: PairResult, colors: Colors) -> None:
         values = [np.nan if r.error else float(r.metrics.get(key, np.nan)) for r in result.estimators]
         if not any(np.isfinite(values)):
             continue
-        points.append((width / 2, y))
+        points.append((width / 2, y - L.LABEL_DROP))
         labels.append(title + " (log scale)")
         y += head
         for r, v, length in zip(result.estimators, values, bar_lengths(values, width)):
@@ -501,7 +514,7 @@ def log_comparison(rec, result: PairResult, colors: Colors) -> None:
             bar_colors.append(_rgb(colors[r.name]))
             bar_radii.append(pitch / 3)
             text = f"{r.name}: {'failed' if r.error else _fmt(v)}"
-            points.append((max(length, 0.5) + 12.0 + 4.2 * len(text), y))  # Rerun centres a label on its point
+            points.append((max(length, 0.5) + 12.0 + 4.2 * len(text), y - L.LABEL_DROP))  # centred on its point
             labels.append(text)
             y += pitch
         y += pitch / 2
@@ -518,8 +531,8 @@ def log_comparison(rec, result: PairResult, colors: Colors) -> None:
         bars.append([(0.0, y0), (0.0, y0 + L.CDF_H), (width, y0 + L.CDF_H)])
         bar_colors.append(_rgb((200, 200, 200)))
         bar_radii.append(0.6)
-        points += [(width / 2, y0 - 16.0), (0.0, y0 + L.CDF_H + 14.0), (width * 2 / 3, y0 + L.CDF_H + 14.0),
-                   (width, y0 + L.CDF_H + 14.0), (-14.0, y0), (-14.0, y0 + L.CDF_H)]
+        points += [(x, y - L.LABEL_DROP) for x, y in ((width / 2, y0 - 16.0), (0.0, y0 + L.CDF_H + 14.0),
+                   (width * 2 / 3, y0 + L.CDF_H + 14.0), (width, y0 + L.CDF_H + 14.0), (-30.0, y0), (-30.0, y0 + L.CDF_H))]
         labels += ["matches with SED < x (per F)", "0.01", "1 px", "10", "100%", "0"]
     # labels white: Rerun draws them on grey boxes, where coloured text is hard to read; the bar beside each
     # label carries the colour
@@ -674,8 +687,9 @@ SERIES_PATHS = tuple([L.metric(k) for k in L.SERIES_METRICS] + [L.motion(k) for 
 
 
 def log_legend(rec, colors: Colors, path: str = L.LEGEND, origin=(0.0, 0.0), pitch: float = 24.0) -> None:
-    """One row per F: a bar in its colour and its name beside it (labels white, on Rerun's grey boxes), drawn in
-    2D on the charts' dark background. -> rows of ``pitch`` units from ``origin``."""
+    """One row per F: a bar in its colour and its name beside it (labels white, on Rerun's grey boxes, their
+    points 0.4 rows up: Rerun draws a label below its point), drawn in 2D on the charts' dark background.
+    -> rows of ``pitch`` units from ``origin``."""
     import rerun as rr
 
     x0, y0 = origin
@@ -683,7 +697,7 @@ def log_legend(rec, colors: Colors, path: str = L.LEGEND, origin=(0.0, 0.0), pit
     bars = [[(x0, y0 + i * pitch), (x0 + 40.0, y0 + i * pitch)] for i in range(len(rows))]
     labels = ["ground truth" if n == L.GT else n for n, _ in rows]
     rec.log(path, rr.LineStrips2D(bars, colors=[_rgb(c) for _, c in rows], radii=pitch / 4),
-            rr.Points2D([(x0 + 120.0, y0 + i * pitch) for i in range(len(rows))], radii=0.1, colors=[(255, 255, 255)],
+            rr.Points2D([(x0 + 120.0, y0 + (i - 0.4) * pitch) for i in range(len(rows))], radii=0.1, colors=[(255, 255, 255)],
                         labels=labels, show_labels=True), static=True)
 
 
@@ -776,10 +790,46 @@ def log_curves(rec, per_pair: dict[str, dict[str, Sequence[float]]], colors: Col
     log_legend(rec, {n: c for n, c in colors.items() if n != L.GT}, f"{L.CURVES}/legend", (0.0, L.CURVE_H + 70.0))
 
 
+def suspect_reference(notes: Sequence[str]) -> str | None:
+    """The F to trust instead of the ground truth when the notes say it is suspect (None otherwise)."""
+    return next((n.rpartition("(reference: ")[2].rstrip(")") for n in notes if n.startswith(GT_SUSPECT_NOTE)), None)
+
+
 def suspect_notice(notes: Sequence[str]) -> str:
     """The overview's warning when the notes say the ground truth is suspect ("" otherwise)."""
-    ref = next((n.rpartition("(reference: ")[2].rstrip(")") for n in notes if n.startswith(GT_SUSPECT_NOTE)), None)
-    return "" if ref is None else f"GROUND TRUTH SUSPECT (summary; trust {ref}'s tab) - "
+    ref = suspect_reference(notes)
+    return "" if ref is None else f"GROUND TRUTH SUSPECT: thick labelled lines = REFERENCE, {ref}'s F (summary) - "
+
+
+def reference_label(name: str) -> str:
+    return f"thick lines: REFERENCE = {name}'s F (the ground truth is suspect)"
+
+
+def log_reference(rec, pair: Pair, result: PairResult, colors: Colors, sub: np.ndarray) -> bool:
+    """``layout.REFERENCE``: when the notes name a reference F (ground truth suspect), its epipolar lines of the
+    first REFERENCE_LINES line matches ``sub`` in both images, where both cross their image (image b's shifted
+    below a), thick, in its colour, one label per image; otherwise empty (a run's pair: no lines linger from a
+    previous one). -> whether lines were drawn."""
+    import rerun as rr
+
+    name = suspect_reference(result.notes)
+    r = None if name is None else result.get(name)
+    strips = []
+    if r is not None and not r.error and r.F is not None:
+        k = sub[: L.REFERENCE_LINES]
+        seg_a, in_a = clip_lines(lines_in_a(r.F, result.matches.x_b[k]), *pair.size_a)
+        seg_b, in_b = clip_lines(lines_in_b(r.F, result.matches.x_a[k]), *pair.size_b)
+        both = in_a & in_b
+        strips = [*seg_a[both], *(seg_b[both] + L.offset_b(pair.size_a))]
+    n = len(strips)
+    if n:  # the names: black on Rerun's light label box (text takes its strip's colour), top right of each image
+        strips += [np.stack([at, at]) for at in (np.array([0.8 * pair.size_a[0], 22.0]),
+                                                  np.array([0.8 * pair.size_b[0], 22.0]) + L.offset_b(pair.size_a))]
+    colors_ = [_rgb(colors[name])] * n + [_rgb(LABEL_ON_PHOTO)] * (len(strips) - n) if n else []
+    rec.log(L.REFERENCE, rr.LineStrips2D(strips, colors=colors_ or None, radii=[L.REFERENCE_RADIUS] * n + [0.0] * (len(strips) - n),
+                                         labels=[""] * n + [reference_label(name)] * (len(strips) - n) or None,
+                                         show_labels=True, draw_order=35.0))
+    return n > 0
 
 
 def write_pair_recording(path: str | Path, pair: Pair, result: PairResult, n_lines: int = 30,
