@@ -54,3 +54,29 @@ def test_eval_records_the_estimator_needing_K_as_its_failure_and_goes_on(images,
     assert errors["poselib-E"].startswith("poselib-E needs the cameras' intrinsics K") and "\n" not in errors["poselib-E"]
     summary = json.loads((out / "summary.json").read_text())["estimators"]
     assert summary["poselib-E"]["failed"] == 1 and summary["colmap"]["failed"] == 0
+
+
+def test_a_pair_without_ground_truth_whose_every_estimator_fails_is_still_recorded(tmp_path):
+    """No F at all (no ground truth, the only estimator raised): the probe has nothing to draw, the failure is
+    reported in one line and the recording is written, without a traceback."""
+    import os
+    import subprocess
+    import sys
+
+    from fviz.errors import FvizError
+    from fviz.record import layout as L
+    from fviz.record.reader import text
+    from sources_util import fountain
+
+    (tmp_path / "crash_mod.py").write_text("def crash(pair, x_a, x_b):\n    raise RuntimeError('my estimator crashed')\n")
+    images = fountain() / "images"
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path), *sys.path])}
+    out = tmp_path / "p.rrd"
+    proc = subprocess.run([sys.executable, "-m", "fviz", "inspect", "pair", "--image-a", str(images / "0000.jpg"),
+                           "--image-b", str(images / "0001.jpg"), "-e", "crash_mod:crash", "--out", str(out)],
+                          capture_output=True, text=True, env=env, timeout=600)
+    assert "Traceback" not in proc.stderr, proc.stderr
+    assert proc.returncode == 1 and "my estimator crashed" in proc.stdout + proc.stderr
+    assert "my estimator crashed" in "\n".join(text(out, L.SUMMARY))
+    with pytest.raises(FvizError):  # no probe steps: there is no line to draw
+        text(out, L.PROBE_TEXT)

@@ -638,6 +638,8 @@ def log_probe(rec, index: int, pair: Pair, result: PairResult, steps: int = PROB
     colors = colors or L.estimator_colors(_names(result))
     order = probe_order(result, by)[:max(steps, 0)]
     m, ok = result.matches, [r for r in result.estimators if not r.error]
+    if not ok:  # no F at all (every estimator failed and no ground truth): no line to probe
+        return 0
     sizes = {"a": pair.size_a, "b": pair.size_b}
     shift = L.offset_b(pair.size_a)
     rank = ("the largest residual over the estimators" if by is None else "the matcher's score, lowest first"
