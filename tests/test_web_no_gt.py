@@ -62,7 +62,8 @@ def test_no_ground_truth_overview_shows_the_estimators_and_no_ground_truth(no_gt
         white = int((near(crop, WHITE, 30) & drawn).sum())
         print(f"image {v}: overlay pixels per colour {counts}, white {white}")
         assert counts[ref] > 1000, f"{ref}'s lines are not drawn on image {v}: {counts}; {shot.context}"
-        assert min(counts.values()) > 100, f"an estimator's epipole is not drawn on image {v}: {counts}; {shot.context}"
+        # an epipole's glyph alone is ~90 px of its colour (its name is black on a box); none drawn is < 10
+        assert min(counts.values()) > 40, f"an estimator's epipole is not drawn on image {v}: {counts}; {shot.context}"
         assert white < 100, f"white (ground-truth) lines on image {v}: {white} px; {shot.context}"
     # the comparison chart (right column, its dark background): bars are long runs of one colour, text short
     h, w = shot.rgb.shape[:2]

@@ -235,13 +235,17 @@ PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 def png_shape(path: Path) -> tuple[int, ...] | None:
     """The shape :func:`read_image` gives an 8- or 16-bit gray or RGB PNG, from its header alone ((H, W) or
-    (H, W, 3)); None for any other file (read it whole)."""
+    (H, W, 3)); None for any other file, or a header whose CRC does not match (read it whole)."""
+    import zlib
+
     try:
         with open(path, "rb") as f:
-            head = f.read(26)
+            head = f.read(33)
     except OSError:
         return None
-    if len(head) < 26 or head[:8] != PNG_SIGNATURE or head[12:16] != b"IHDR":
+    if len(head) < 33 or head[:8] != PNG_SIGNATURE or head[12:16] != b"IHDR":
+        return None
+    if zlib.crc32(head[12:29]) != int.from_bytes(head[29:33], "big"):  # a damaged header: decode now, which names it
         return None
     width, height = int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
     depth, colour = head[24], head[25]
