@@ -148,7 +148,7 @@ import cv2
 import fviz.estimators.features as features
 from fviz.cli.eval import RUN_PARAMS, RunArgs
 from fviz.run.config import prepare
-from fviz.run.execute import FrameSchedule, PairEvaluator, schedule_window
+from fviz.run.execute import CACHE_FRESH, CACHE_NOTES, FrameSchedule, PairEvaluator, schedule_window
 
 cv2.setNumThreads(1)
 detect, sift = features.detect, [0.0]
@@ -169,6 +169,7 @@ total = 0.0
 while (task := schedule.next_task()) is not None:
     t0 = time.process_time()
     rec, kept = evaluator.run_task(task)
+    rec.pop(CACHE_FRESH, None), rec.pop(CACHE_NOTES, None)  # the run folder's features.h5 entries, written apart
     json.dumps(rec)  # results.jsonl
     total += time.process_time() - t0
     schedule.done(task, kept)
