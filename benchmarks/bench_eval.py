@@ -142,8 +142,11 @@ def fviz_eval(args: list[str], out_dir: Path | None = None) -> tuple[float, floa
 
 
 PER_PAIR = """
-import json, sys, time
+import importlib, json, sys, time
 from pathlib import Path
+from fviz.prestart import WORKER_PRELOAD
+for name in WORKER_PRELOAD:  # what a worker imports before its first pair (start-up, not per pair)
+    importlib.import_module(name)
 import cv2
 import fviz.estimators.features as features
 from fviz.cli.eval import RUN_PARAMS, RunArgs
@@ -179,7 +182,7 @@ print(json.dumps({"pairs": len(todo), "cpu": total, "sift": sift[0], "detections
 
 def per_pair_outside_sift(root: Path) -> dict:
     """CPU seconds per pair outside feature detection, over the run's frame schedule in one single-threaded
-    process (as one worker would, every pair)."""
+    process (as one worker would, every pair, its imports done first as a worker's are)."""
     env = {**ENV, "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
     with tempfile.TemporaryDirectory() as tmp:
         out = subprocess.run([sys.executable, "-c", PER_PAIR, str(root), tmp], capture_output=True, text=True,

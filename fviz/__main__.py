@@ -1,3 +1,3 @@
-from fviz.cli import main
+from fviz.entry import main
 
 main()

@@ -49,6 +49,7 @@ from fviz.geometry import (
     NORMS,
     NormalizationError,
     algebraic,
+    epipolar_residuals,
     epipoles,
     f_distance,
     gt_inlier_ratio,
@@ -57,7 +58,6 @@ from fviz.geometry import (
     nsgd,
     recover_pose,
     rotation_error_deg,
-    sampson_distance,
     symmetric_epipolar_distance,
     translation_error_deg,
 )
@@ -169,10 +169,19 @@ def epi_metrics(F: np.ndarray, x_a: np.ndarray, x_b: np.ndarray, norm: str) -> t
     """(EPI-ABS, EPI-SQR) as means over the given correspondences of F normalized by ``norm``."""
     if len(x_a) == 0:
         return float("nan"), float("nan")
+    return _epi_of(algebraic(F, x_a, x_b), F, norm)
+
+
+def _epi_of(residuals: np.ndarray, F: np.ndarray, norm: str) -> tuple[float, float]:
+    """:func:`epi_metrics` from F's own algebraic residuals |x_b^T F x_a| (N,): normalizing F scales them."""
+    if len(residuals) == 0:
+        return float("nan"), float("nan")
+    F = np.asarray(F, np.float64)
     try:
-        r = algebraic(normalize(F, norm), x_a, x_b)
+        scale = abs(float(np.sum(normalize(F, norm) * F) / np.sum(F * F)))  # normalize(F) = +-scale F
     except NormalizationError:
         return float("nan"), float("nan")
+    r = residuals * scale
     return float(r.mean()), float((r**2).mean())
 
 
@@ -193,25 +202,29 @@ def true_pose(pair: Pair) -> tuple[np.ndarray, np.ndarray]:
 
 def score(
     name: str, F: np.ndarray, pair: Pair, m: Matches, evaluation: tuple[np.ndarray, np.ndarray], norm: str,
-    inliers: np.ndarray | None, threshold_px: float,
+    inliers: np.ndarray | None, threshold_px: float, eval_mask: np.ndarray | None = None,
 ) -> tuple[dict[str, float], np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray] | None]:
     """Metrics of one F on one pair (see module doc), per-match SED residuals (px), the inlier mask and
     the recovered pose (None when unknown; the true one for the ground truth).
 
-    evaluation: (x_a, x_b) (E, 2) the points the residuals are computed on (:func:`evaluation_points`).
+    evaluation: (x_a, x_b) (E, 2) the points the residuals are computed on (:func:`evaluation_points`);
+    ``eval_mask`` (M,) when they are the matches under it (their residuals are then taken, not recomputed).
     Without an estimator's own mask, inliers are the matches with Sampson distance < ``threshold_px``.
     Metrics that need what the pair lacks (ground truth, pose, cameras) are absent.
     """
-    sed = symmetric_epipolar_distance(F, m.x_a, m.x_b)
+    alg_m, sed, samp_m = epipolar_residuals(F, m.x_a, m.x_b)
     xa, xb = evaluation
-    sed_eval, samp = symmetric_epipolar_distance(F, xa, xb), sampson_distance(F, xa, xb)
+    if eval_mask is not None:  # the evaluation points are these matches: their residuals are at hand
+        alg, sed_eval, samp = alg_m[eval_mask], sed[eval_mask], samp_m[eval_mask]
+    else:
+        alg, sed_eval, samp = epipolar_residuals(F, xa, xb)
     if inliers is None:
-        inliers = sampson_distance(F, m.x_a, m.x_b) < threshold_px
+        inliers = samp_m < threshold_px
     nan = float("nan")
     metrics: dict[str, float] = {}
-    metrics["epi_abs"], metrics["epi_sqr"] = epi_metrics(F, xa, xb, norm)
+    metrics["epi_abs"], metrics["epi_sqr"] = _epi_of(alg, F, norm)
     for n in NORMS:
-        metrics[f"epi_abs_{n}"], metrics[f"epi_sqr_{n}"] = epi_metrics(F, xa, xb, n)
+        metrics[f"epi_abs_{n}"], metrics[f"epi_sqr_{n}"] = _epi_of(alg, F, n)
     metrics.update(
         sed_mean=float(np.mean(sed_eval)) if len(sed_eval) else nan,
         sed_median=float(np.median(sed_eval)) if len(sed_eval) else nan,
@@ -306,14 +319,16 @@ def evaluate_pair(
     if pair.has_gt and norm == "etr" and abs(normalize(pair.F_gt, "fbn")[2, 2]) < 1e-9:
         notes.append("ETR is undefined for this pair (F33 = 0: rectified stereo); epi_* under ETR are NaN")
     results = []
-    gt_row = [(GT_NAME, lambda p, a, b: p.F_gt)] if pair.has_gt else []
+    gt_row = [(GT_NAME, None)] if pair.has_gt else []
     for name, fn in [*gt_row, *estimators]:
-        est: Estimate = run_estimator(name, fn, pair, m.x_a, m.x_b, timeout)
+        # the ground truth is the pair's own F: nothing to isolate
+        est: Estimate = Estimate(name, pair.F_gt, None, 0.0) if fn is None else run_estimator(name, fn, pair, m.x_a, m.x_b, timeout)
         if not est.ok:
             results.append(EstimatorResult(name, None, {}, est.seconds, est.error))
             continue
         inliers = est.inliers if name != GT_NAME else None
-        metrics, sed, inl, pose = score(name, est.F, pair, m, evaluation, norm, inliers, inlier_threshold_px)
+        metrics, sed, inl, pose = score(name, est.F, pair, m, evaluation, norm, inliers, inlier_threshold_px,
+                                        None if eval_points == "gt-matches" else eval_mask)
         R, t = pose or (None, None)
         results.append(EstimatorResult(name, est.F, metrics, est.seconds, None, inl, sed, R, t))
     return PairResult(

@@ -1,5 +1,5 @@
-"""The worker processes of ``eval`` and ``triage``, started the moment the command is known, before its options
-are parsed (typer's parsing imports pydantic, ~0.3 s) and the run is prepared: their own imports (numpy,
+"""The worker processes of ``eval`` and ``triage``, started the moment the command is known (:mod:`fviz.entry`),
+before the command line is imported and its options parsed (typer's parsing imports pydantic, ~0.3 s) and the run is prepared: their own imports (numpy,
 OpenCV, fviz's evaluation) overlap the main process's instead of following them. A run's
 :class:`fviz.run.execute.WorkerPool` takes them (:func:`take`); a command that ends first (``--help``, a bad
 flag, a run too small for workers) leaves them to die with it (they die with their parent).
@@ -12,28 +12,35 @@ from __future__ import annotations
 import contextlib
 import os
 
-WORKER_PRELOAD = ("cv2", "fviz.evaluate", "fviz.estimators.classical", "fviz.diagnose", "fviz.data.kitti")
+WORKER_PRELOAD = ("cv2", "numpy.random", "fviz.evaluate", "fviz.estimators.classical", "fviz.diagnose", "fviz.data.kitti",
+                  "fviz.data.correspondences", "fviz.run.hloc_cache")
 THREAD_ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 COMMANDS = ("eval", "triage")
 
 _started: list[tuple] = []  # (process, connection) of workers started before a pool took them
 
 
-def spawn_worker(preload: tuple[str, ...] = WORKER_PRELOAD) -> tuple:
+def spawn_worker(preload: tuple[str, ...] = WORKER_PRELOAD, fork: bool = False) -> tuple:
     """(process, connection) of a new worker (:func:`fviz.run.execute._worker_main`): one BLAS/OpenMP thread,
-    Ctrl-C and SIGTERM ignored (the main process's business), dying with this process."""
+    Ctrl-C and SIGTERM ignored (the main process's business), dying with this process. ``fork``: a fork of
+    this process (no new interpreter to start), safe only while it has one thread and nothing heavy imported
+    (:func:`prestart`); else a fresh interpreter (spawn)."""
     import multiprocessing as mp
 
-    ctx = mp.get_context("spawn")
+    ctx = mp.get_context("fork" if fork else "spawn")
     parent, child = ctx.Pipe()
-    proc = ctx.Process(target=_entry, args=(child, os.getpid(), preload), daemon=True, name="fviz-eval-worker")
+    inherited = (parent.fileno(), *(c.fileno() for _, c in _started)) if fork else ()  # other pipes' ends a fork holds
+    proc = ctx.Process(target=_entry, args=(child, os.getpid(), preload, inherited), daemon=True, name="fviz-eval-worker")
     with _single_threaded_children(), _signals_ignored():
         proc.start()
     child.close()
     return proc, parent
 
 
-def _entry(conn, parent_pid: int, preload: tuple[str, ...]) -> None:
+def _entry(conn, parent_pid: int, preload: tuple[str, ...], inherited: tuple[int, ...] = ()) -> None:
+    for fd in inherited:  # a fork's copies of the main process's ends: the pipes close when the main process's do
+        with contextlib.suppress(OSError):
+            os.close(fd)
     from fviz.run.execute import _worker_main
 
     _worker_main(conn, parent_pid, preload)
@@ -55,7 +62,16 @@ def prestart(argv: list[str]) -> None:
         n = min(n, int(workers))
     if n <= 1:
         return
-    _started.extend(spawn_worker() for _ in range(n))
+    _started.extend(spawn_worker(fork=_fork_safe()) for _ in range(n))
+
+
+def _fork_safe() -> bool:
+    """Whether workers may be forks of this process: Linux, one thread, and none of the libraries that
+    keep threads or state a fork would copy (BLAS, OpenCV, torch) imported yet."""
+    import sys
+    import threading
+
+    return sys.platform == "linux" and threading.active_count() == 1 and not {"numpy", "cv2", "torch"} & sys.modules.keys()
 
 
 def take(n: int) -> list[tuple]:

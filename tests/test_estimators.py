@@ -137,6 +137,27 @@ def test_matching_equals_opencv_brute_force(odometry, kind, frame, pair_kind, st
     np.testing.assert_allclose(got.distance, d_ref, rtol=1e-6)
 
 
+@pytest.mark.parametrize("block", [1, 7, 64])
+def test_matching_in_blocks_of_rows_equals_opencv(monkeypatch, block):
+    """The distance matrix is reduced a block of rows at a time: ties and nearest neighbours that fall in
+    other blocks than their rivals' still resolve as OpenCV's brute-force matcher does."""
+    import cv2
+
+    import fviz.estimators.features as features
+
+    monkeypatch.setattr(features, "MATCH_BLOCK", block)
+    rng = np.random.default_rng(1)
+    db = rng.integers(0, 60, (200, 128)).astype(np.float32)
+    da = (db[:120] + rng.integers(0, 2, (120, 128))).astype(np.float32)
+    da[100:120] = da[:20]  # a tie between rows far apart (in different blocks)
+    db[180:] = db[160:180]
+    fa = Features(rng.uniform(0, 100, (len(da), 2)), da)
+    fb = Features(rng.uniform(0, 100, (len(db), 2)), db)
+    for ratio in (0.8, 1.0):
+        got = set(map(tuple, match(fa, fb, FeatureConfig(ratio=ratio)).idx))
+        assert got == _opencv_matches(da, db, cv2.NORM_L2, ratio) and len(got) > 30
+
+
 def test_matching_ties_go_to_the_lowest_index_like_opencv():
     """Duplicated descriptors tie exactly: OpenCV keeps the lowest index, so must the GEMM matcher."""
     import cv2

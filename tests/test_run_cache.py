@@ -166,3 +166,43 @@ def test_the_cache_reads_back_as_hloc_matches(run, fresh, kitti_root, tmp_path):
     assert got.keys() == fresh.keys()
     for key, row in fresh.items():
         assert {k: v for k, v in got[key].items()} == row, key
+
+
+def test_a_run_decodes_each_frame_once_and_names_its_pixels(kitti_root, monkeypatch, tmp_path):
+    """Over the run's frame schedule, each frame is decoded once, to detect it (the cache's pixel digest is
+    taken then, not by decoding again per pair), and features.h5 names each image by the digest of the very
+    pixels OpenCV decodes from its file."""
+    import cv2
+    import h5py
+
+    import fviz.data.kitti as kitti
+    from fviz.cli.eval import RUN_PARAMS, RunArgs
+    from fviz.run.config import prepare
+    from fviz.run.execute import CACHE_FRESH, FrameSchedule, PairEvaluator, schedule_window
+    from fviz.run.hloc_cache import IMAGE_ATTR, CacheWriter, digest
+
+    decoded = []
+    read_image = kitti.read_image
+    monkeypatch.setattr(kitti, "read_image", lambda path: decoded.append(path) or read_image(path))
+    values = {p.name: p.default for p in RUN_PARAMS}
+    values.update(kitti_root=kitti_root, sequence="00", pair_kind=["temporal"], step=["1"],
+                  frames=f"{FRAMES[0]}:{FRAMES[1]}", estimator=["8point"], max_keypoints=400)
+    config = prepare(RunArgs(values).config(()))
+    todo = config.pairs()
+    schedule = FrameSchedule(todo, schedule_window(todo, 1))
+    evaluator = PairEvaluator(config, tmp_path, detect_threads=1)
+    writer = CacheWriter(tmp_path)
+    while (task := schedule.next_task()) is not None:
+        rec, kept = evaluator.run_task(task)
+        assert rec["error"] is None
+        writer.add(rec[CACHE_FRESH])
+        schedule.done(task, kept)
+    assert writer.close() == []
+    assert len(decoded) == len(set(decoded)) == N_IMAGES == evaluator.cache.misses
+    with h5py.File(tmp_path / "features.h5") as f:
+        groups = []
+        f.visititems(lambda name, obj: groups.append(obj) if isinstance(obj, h5py.Group) and "keypoints" in obj else None)
+        assert len(groups) == N_IMAGES
+        for path in decoded:
+            name = next(g for g in groups if g.name.endswith(path.name))
+            assert name.attrs[IMAGE_ATTR] == digest(cv2.imread(str(path), cv2.IMREAD_UNCHANGED))

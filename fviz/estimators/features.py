@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
@@ -29,11 +30,13 @@ class FeatureConfig:
 
 @dataclass
 class Features:
-    """keypoints: (N, 2) float64 pixels; descriptors: (N, D); scores: (N,) the detector's responses, or None."""
+    """keypoints: (N, 2) float64 pixels; descriptors: (N, D); scores: (N,) the detector's responses, or None;
+    image_digest: the pixels' digest when a run's feature cache asked for it (taken while they are decoded)."""
 
     keypoints: np.ndarray
     descriptors: np.ndarray | None
     scores: np.ndarray | None = None
+    image_digest: str | None = None
 
 
 @dataclass
@@ -85,6 +88,9 @@ def detect(image: np.ndarray, cfg: FeatureConfig = FeatureConfig()) -> Features:
     return Features(pts, desc, np.array([k.response for k in kps], dtype=np.float32))
 
 
+MATCH_BLOCK = 256  # rows of the distance matrix at a time: reductions over a block that stays in cache
+
+
 def _l2_nearest_two(da: np.ndarray, db: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Nearest and second-nearest rows of ``db`` for each row of ``da`` by L2 distance, from one GEMM.
 
@@ -95,35 +101,45 @@ def _l2_nearest_two(da: np.ndarray, db: np.ndarray) -> tuple[np.ndarray, np.ndar
     The squared distances come straight out of BLAS: [a, 1, |a|^2] . [-2b, |b|^2, 1]^T = |a - b|^2.
     SIFT descriptors are integers <= 255 whose squared norms are ~512^2, so every partial sum is an
     integer below 2^24 and float32 holds it exactly, in any summation order: the distances, hence the
-    matches, equal OpenCV's. Row reductions run along the contiguous axis; the column minima are an
-    element-wise minimum over rows (no strided arg-min), taken twice: with and without each row's nearest,
-    which finds the columns whose minimum several rows reach (no pass comparing every entry).
+    matches, equal OpenCV's. The matrix is made MATCH_BLOCK rows at a time (each block's reductions run
+    while it is in cache); per block: each row's nearest and, without it, its second nearest, and the
+    column minima with and without the rows' nearest entries, which finds the columns whose minimum several
+    rows reach (ties, recomputed exactly for those columns alone).
     """
     n_a, dim = da.shape
+    n_b = len(db)
     qa = np.empty((n_a, dim + 2), np.float32)
-    qb = np.empty((len(db), dim + 2), np.float32)
+    qb = np.empty((dim + 2, n_b), np.float32)  # transposed: the GEMM's right operand, contiguous
     qa[:, :dim], qa[:, dim] = da, 1.0
     qa[:, dim + 1] = np.einsum("ij,ij->i", da, da)
-    np.multiply(db, -2.0, out=qb[:, :dim])
-    qb[:, dim] = np.einsum("ij,ij->i", db, db)
-    qb[:, dim + 1] = 1.0
-    d2 = qa @ qb.T  # (Na, Nb) squared distances
+    np.multiply(db.T, -2.0, out=qb[:dim])
+    qb[dim] = np.einsum("ij,ij->i", db, db)
+    qb[dim + 1] = 1.0
+    best = np.empty(n_a, np.intp)
+    first, second = np.empty(n_a, np.float32), np.empty(n_a, np.float32)
+    col_min, col_rest = np.full(n_b, np.inf, np.float32), np.full(n_b, np.inf, np.float32)
+    buf = np.empty((min(MATCH_BLOCK, n_a), n_b), np.float32)
+    for s in range(0, n_a, MATCH_BLOCK):
+        d2 = np.matmul(qa[s:s + MATCH_BLOCK], qb, out=buf[: min(MATCH_BLOCK, n_a - s)])  # squared distances
+        rows = np.arange(len(d2))
+        near = best[s:s + len(d2)] = d2.argmin(1)
+        first[s:s + len(d2)] = d2[rows, near]
+        np.minimum(col_min, d2.min(0), out=col_min)
+        d2[rows, near] = np.inf  # the second nearest is the nearest of the rest
+        second[s:s + len(d2)] = d2.min(1)
+        np.minimum(col_rest, d2.min(0), out=col_rest)
     rows = np.arange(n_a)
-    best = d2.argmin(1)
-    first = d2[rows, best]
-    col_min = d2.min(0)
     mutual = first == col_min[best]
-    d2[rows, best] = np.inf  # the second nearest is the nearest of the rest
-    second = d2.min(1)
     # A column's minimum reached by several rows (ties): by several rows whose nearest it is (``owners``), or
     # also by a row off its own nearest (the column's minimum without the nearest entries equals it).
-    owners = np.bincount(best[mutual], minlength=len(db))
-    ties = np.flatnonzero((owners > 1) | ((owners > 0) & (d2.min(0) == col_min)))
+    owners = np.bincount(best[mutual], minlength=n_b)
+    ties = np.flatnonzero((owners > 1) | ((owners > 0) & (col_rest == col_min)))
     if len(ties):
-        back = np.full(len(db), -1)
-        for j in ties:  # the lowest row reaching the minimum, as OpenCV's cross-check keeps
+        back = np.full(n_b, -1)
+        columns = qa @ qb[:, ties]  # (Na, T): the same integers as in the blocks
+        for k, j in enumerate(ties):  # the lowest row reaching the minimum, as OpenCV's cross-check keeps
             own = rows[mutual & (best == j)]
-            other = np.flatnonzero(d2[:, j] == col_min[j])
+            other = np.flatnonzero((columns[:, k] == col_min[j]) & (best != j))
             back[j] = min(own[0], other[0]) if len(other) else own[0]
         tied = back[best] >= 0
         mutual[tied] &= back[best[tied]] == rows[tied]
@@ -168,13 +184,23 @@ class FeatureCache:
 
     ``misses`` counts detections, ``hits`` reuses. A run's scheduler hands a worker the features other
     workers detected (:meth:`put`, not a detection) and takes back the ones later pairs need (:meth:`peek`).
-    ``threads``: two missing images of one pair are detected in parallel when > 1.
+    ``threads``: two missing images of one pair are detected in parallel when > 1. ``fingerprint``: a digest
+    of the pixels, kept with the features it detects (``Features.image_digest``; a run's feature cache needs it,
+    and the pixels are decoded only to detect).
     """
 
-    def __init__(self, cfg: FeatureConfig, max_items: int = 64, threads: int = 2):
-        self.cfg, self.max_items, self.threads = cfg, max_items, threads
+    def __init__(self, cfg: FeatureConfig, max_items: int = 64, threads: int = 2,
+                 fingerprint: Callable[[np.ndarray], str] | None = None):
+        self.cfg, self.max_items, self.threads, self.fingerprint = cfg, max_items, threads, fingerprint
         self._items: dict[str, Features] = {}
         self.hits = self.misses = 0
+
+    def _detect(self, image) -> Features:
+        image = _array(image)
+        f = detect(image, self.cfg)
+        if self.fingerprint is not None:
+            f.image_digest = self.fingerprint(image)
+        return f
 
     def get(self, key: str, image) -> Features:
         """The features of ``image``: an array, or a function giving it (called only to detect)."""
@@ -182,7 +208,7 @@ class FeatureCache:
             self.hits += 1
             return self._items[key]
         self.misses += 1
-        return self.put({key: detect(_array(image), self.cfg)})[key]
+        return self.put({key: self._detect(image)})[key]
 
     def put(self, items: dict[str, Features]) -> dict[str, Features]:
         """Store features, dropping the oldest beyond ``max_items`` (bounded memory)."""
@@ -204,10 +230,9 @@ class FeatureCache:
             return self.get(key_a, image_a), self.get(key_b, image_b)
         from concurrent.futures import ThreadPoolExecutor
 
-        image_a, image_b = _array(image_a), _array(image_b)
         with ThreadPoolExecutor(2) as pool:
-            fb = pool.submit(detect, image_b, self.cfg)
-            fa = detect(image_a, self.cfg)
+            fb = pool.submit(self._detect, image_b)
+            fa = self._detect(image_a)
             fb = fb.result()
         self.misses += 2
         self.put({key_a: fa, key_b: fb})

@@ -43,3 +43,13 @@ def sampson_distance(F: np.ndarray, x_a: np.ndarray, x_b: np.ndarray) -> np.ndar
     den = Fxa[:, 0] ** 2 + Fxa[:, 1] ** 2 + Ftxb[:, 0] ** 2 + Ftxb[:, 1] ** 2
     with np.errstate(divide="ignore", invalid="ignore"):
         return np.abs(r) / np.sqrt(den)
+
+
+def epipolar_residuals(F: np.ndarray, x_a: np.ndarray, x_b: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(:func:`algebraic`, :func:`symmetric_epipolar_distance`, :func:`sampson_distance`) of F at once, from
+    one evaluation of the lines.  (3, 3), (N, 2), (N, 2) -> 3 x (N,)."""
+    r, Fxa, Ftxb = _terms(F, x_a, x_b)
+    r = np.abs(r)
+    nb, na = Fxa[:, 0] ** 2 + Fxa[:, 1] ** 2, Ftxb[:, 0] ** 2 + Ftxb[:, 1] ** 2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return r, 0.5 * (r / np.sqrt(na) + r / np.sqrt(nb)), r / np.sqrt(na + nb)

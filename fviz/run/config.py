@@ -156,7 +156,13 @@ class Selection:
 
     def source(self):
         """The pairs' source: KittiSource, SyntheticSource or a user's (fviz.data.sources), with the user's
-        matches and ground-truth correspondences attached when given."""
+        matches and ground-truth correspondences attached when given; made once per selection (a source
+        reads calibration, poses and the image folders as it is asked)."""
+        if "_source" not in self.__dict__:
+            object.__setattr__(self, "_source", self._make_source())  # not a field: neither compared nor saved
+        return self.__dict__["_source"]
+
+    def _make_source(self):
         gt_flags = [f for f, v in (("--K", self.K), ("--K-a", self.K_a), ("--K-b", self.K_b), ("--T-ab", self.T_ab),
                                    ("--F-gt", self.F_gt)) if v]
         if gt_flags and self.image_a is None and self.image_b is None:
@@ -388,9 +394,11 @@ class RunConfig:
         import hashlib
         import json
 
-        d = self.comparable()
-        settings = {"options": d["options"], "norm": d["norm"], "eval_threshold": float(d["eval_threshold"]),
-                    "pair": {k: v for k, v in ref.items() if k != "name"}}
+        if "_fingerprinted" not in self.__dict__:  # the settings part, once per configuration (it is frozen)
+            d = self.comparable()
+            object.__setattr__(self, "_fingerprinted", {"options": d["options"], "norm": d["norm"],
+                                                        "eval_threshold": float(d["eval_threshold"])})
+        settings = {**self.__dict__["_fingerprinted"], "pair": {k: v for k, v in ref.items() if k != "name"}}
         return hashlib.sha256(json.dumps(settings, sort_keys=True).encode()).hexdigest()[:20]
 
     def estimator_names(self) -> list[str]:

@@ -46,14 +46,15 @@ class PairEvaluator:
     def __init__(self, config: RunConfig, out_dir: Path, detect_threads: int = 2, batched: tuple[str, ...] = ()):
         from fviz.estimators.features import FeatureCache
         from fviz.diagnose import diagnose
-        from fviz.run.hloc_cache import RunCache
+        from fviz.run.hloc_cache import RunCache, digest
 
         self.config, self.out_dir = config, Path(out_dir)
         self.source = config.selection.source()
         self.batched: dict = {}  # the current task's results of estimators run in batches elsewhere
         self.estimators = self._resolve(config, batched)
         self.features = config.options.feature_config()
-        self.cache = FeatureCache(self.features, max_items=config.cache_items(), threads=detect_threads)
+        self.cache = FeatureCache(self.features, max_items=config.cache_items(), threads=detect_threads,
+                                  fingerprint=digest)  # the run folder's features.h5 names the pixels
         self.disk = RunCache(self.out_dir, self.features)  # features.h5 / matches.h5 of the run folder
         self.cached: tuple[list, int, int] = ([], 0, 0)  # the last pair's (new cache entries, features read, matches read)
         self.diagnose = diagnose
@@ -596,13 +597,36 @@ def _check_resume(out_dir: Path, config: RunConfig, resume: bool) -> None:
         raise FvizError(f"--resume: {out_dir} holds shard {old.shard}, not {config.shard}")
 
 
-def _progress(enabled: bool):
-    from rich.console import Console
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+class _Progress:
+    """eval's progress bar (rich), started when the first pair finishes: rich's import (~0.25 s) then happens
+    while the workers detect, not before the first pair starts. Nothing at all when disabled."""
 
-    return Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), TextColumn("elapsed"),
-                    TimeElapsedColumn(), TextColumn("eta"), TimeRemainingColumn(), console=Console(stderr=True),
-                    disable=not enabled)
+    def __init__(self, enabled: bool, total: int, completed: int):
+        self.enabled, self.total, self.completed = enabled, total, completed
+        self.bar = self.task = None
+
+    def __enter__(self) -> "_Progress":
+        return self
+
+    def advance(self) -> None:
+        if not self.enabled:
+            return
+        if self.bar is None:
+            from rich.console import Console
+            from rich.progress import (
+                BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn,
+            )
+
+            self.bar = Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
+                                TextColumn("elapsed"), TimeElapsedColumn(), TextColumn("eta"), TimeRemainingColumn(),
+                                console=Console(stderr=True))
+            self.bar.start()
+            self.task = self.bar.add_task("eval", total=self.total, completed=self.completed)
+        self.bar.advance(self.task)
+
+    def __exit__(self, *exc) -> None:
+        if self.bar is not None:
+            self.bar.stop()
 
 
 def run_eval(config: RunConfig, out_dir: str | Path, workers: int | None = None, resume: bool = False,
@@ -634,7 +658,7 @@ def _preload_reports() -> None:
     import threading
 
     def run() -> None:
-        for name in ("pyarrow.parquet", "rerun", "rerun.blueprint", "fviz.record.writer"):
+        for name in ("pyarrow.parquet", "rerun", "rerun.blueprint", "fviz.record.writer", "rich.console", "rich.table"):
             with contextlib.suppress(Exception):
                 __import__(name)
 
@@ -711,14 +735,13 @@ def _run(config: RunConfig, out_dir: Path, pool: WorkerPool | None, resume: bool
         outcome.computed += 1
         outcome.failed += rec["error"] is not None
         outcome.detections += rec["detections"]
-        bar.advance(bar_task)
+        bar.advance()
+        if outcome.computed == 1:
+            _preload_reports()  # now that the workers are busy, not before their first pairs start
 
-    if todo:
-        _preload_reports()
     writer = CacheWriter(out_dir)
     with Interrupts() as interrupts:
-        with _progress(progress) as bar:
-            bar_task = bar.add_task("eval", total=len(pairs), completed=outcome.reused)
+        with _Progress(progress, len(pairs), outcome.reused) as bar:
             try:
                 _execute(config, todo, pool, out_dir, on_record, interrupts, only)
             except KeyboardInterrupt:

@@ -152,7 +152,7 @@ class RunCache:
                 or desc.shape != (dim, len(kp)) or desc.dtype != dtype or (scores is not None and scores.shape != (len(kp),)):
             return self._problem(FEATURES_FILE, "malformed (keypoints, descriptors or scores)")
         return Features(kp.astype(np.float64) - HLOC_PIXEL_SHIFT, np.ascontiguousarray(desc.T),
-                        None if scores is None else scores.astype(np.float32))
+                        None if scores is None else scores.astype(np.float32), image_digest)
 
     def _matches(self, group, digests: tuple[str, str], fa: Features, fb: Features) -> Matches | None:
         if group.attrs.get(SETTINGS_ATTR) != self._setting(True):
@@ -168,33 +168,44 @@ class RunCache:
         return matches_from(m0, dist, fa, fb)
 
     def prepare(self, pair, cache) -> Callable[[Features, Features], Matches]:
-        """Load the pair's cached features into ``cache`` (the in-memory one); -> the matcher to use."""
+        """Load the pair's cached features into ``cache`` (the in-memory one); -> the matcher to use.
+
+        The pixels are digested only to check an entry found on disk; features detected in this run carry
+        their digest already (``cache.fingerprint``), taken while they were decoded to detect."""
         from fviz.data.correspondences import hloc_name, names_to_pair
         from fviz.estimators.features import match
 
         pid = pair.id
         names = (hloc_name(pair, "a"), hloc_name(pair, "b"))
-        digests = (digest(pair.image_a), digest(pair.image_b))
+        digests: dict[str, str] = {}
+
+        def image_digest(side: str) -> str:
+            key = pid.key_a if side == "a" else pid.key_b
+            if key not in digests:
+                f = cache.peek(key)
+                digests[key] = f.image_digest if f is not None and f.image_digest else _pixel_digest(pair, side)
+            return digests[key]
+
         known, loaded = set(), 0
-        for key, name, d in zip((pid.key_a, pid.key_b), names, digests):
+        for key, name, side in ((pid.key_a, names[0], "a"), (pid.key_b, names[1], "b")):
             if cache.peek(key) is None:
-                f = self._read(FEATURES_FILE, name, lambda g, d=d: self._features(g, d))
+                f = self._read(FEATURES_FILE, name, lambda g, side=side: self._features(g, image_digest(side)))
                 if f is None:
                     continue
                 cache.put({key: f})
                 loaded += 1
             known.add(key)
-        state = self._pair = {"names": names, "digests": digests, "known": known, "features": loaded, "matches": 0,
-                              "fresh": []}
+        state = self._pair = {"names": names, "known": known, "features": loaded, "matches": 0, "fresh": []}
         key = names_to_pair(*names)
 
         def matcher(fa: Features, fb: Features) -> Matches:
-            m = self._read(MATCHES_FILE, key, lambda g: self._matches(g, digests, fa, fb))
+            pair_digests = (image_digest("a"), image_digest("b"))
+            m = self._read(MATCHES_FILE, key, lambda g: self._matches(g, pair_digests, fa, fb))
             if m is not None:
                 state["matches"] = 1
                 return m
             m = match(fa, fb, self.cfg)
-            state["fresh"].append(matches_entry(key, m, fa, fb, digests, self.cfg))
+            state["fresh"].append(matches_entry(key, m, fa, fb, pair_digests, self.cfg))
             return m
 
         return matcher
@@ -206,13 +217,18 @@ class RunCache:
             return [], 0, 0
         fresh = list(state["fresh"])
         seen = set()
-        for key, name, d, size in zip((pair.id.key_a, pair.id.key_b), state["names"], state["digests"], (pair.size_a, pair.size_b)):
+        for key, name, side, size in zip((pair.id.key_a, pair.id.key_b), state["names"], "ab", (pair.size_a, pair.size_b)):
             f = cache.peek(key)
             if key in state["known"] or key in seen or f is None:
                 continue
             seen.add(key)
-            fresh.insert(0, features_entry(name, f, d, self.cfg, size))
+            fresh.insert(0, features_entry(name, f, f.image_digest or _pixel_digest(pair, side), self.cfg, size))
         return fresh, state["features"], state["matches"]
+
+
+def _pixel_digest(pair, side: str) -> str:
+    """The digest of image ``side`` ("a" or "b") of ``pair``, decoding it if it is not yet."""
+    return digest(pair.image_a if side == "a" else pair.image_b)
 
 
 class CacheWriter:

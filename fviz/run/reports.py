@@ -35,9 +35,13 @@ def _columns(rows_iter: Iterable[dict[str, Any]]) -> list[str]:
     return list(cols)
 
 
-def iter_rows(out_dir: Path, config: RunConfig) -> Iterator[tuple[dict[str, Any], PairResult, list[dict[str, Any]]]]:
-    """(record, its PairResult, its CSV rows) of each pair, by index."""
-    for rec in ResultStore(out_dir, config).records():
+def iter_rows(out_dir: Path, config: RunConfig, entries: list | None = None
+              ) -> Iterator[tuple[dict[str, Any], PairResult, list[dict[str, Any]]]]:
+    """(record, its PairResult, its CSV rows) of each pair, by index; ``entries``: the run's
+    (:meth:`ResultStore.latest`) when the caller has them already (results.jsonl is then not scanned again)."""
+    if entries is None:
+        entries = list(ResultStore(out_dir, config).latest().values())
+    for rec in read_records(entries):
         result = result_from_record(rec, config)
         yield rec, result, record_rows(rec, result)
 
@@ -124,12 +128,13 @@ def write_reports(out_dir: Path, config: RunConfig) -> dict[str, Path]:
     out_dir = Path(out_dir)
     paths: dict[str, Path] = {}
     try:
-        columns = _columns(row for _, _, rows in iter_rows(out_dir, config) for row in rows)
-        stats = _write_tables(out_dir, config, columns)
+        entries = list(ResultStore(out_dir, config).latest().values())  # results.jsonl scanned once
+        columns = _columns(row for _, _, rows in iter_rows(out_dir, config, entries) for row in rows)
+        stats = _write_tables(out_dir, config, columns, entries)
         paths.update(csv=out_dir / CSV_FILE, parquet=out_dir / PARQUET_FILE)
         paths["summary"] = write_summary(out_dir / SUMMARY_FILE, config, stats)
         paths["summary_json"] = write_text(out_dir / SUMMARY_JSON, json.dumps(summary_document(config, stats), indent=2) + "\n")
-        paths["rrd"] = write_recording(out_dir / RRD_FILE, out_dir, config, run_markdown(config, stats))
+        paths["rrd"] = write_recording(out_dir / RRD_FILE, out_dir, config, run_markdown(config, stats), entries)
     except KeyboardInterrupt:
         raise Interrupted(f"while writing the reports: {_reports_kept(out_dir, paths)}") from None
     except WriteError as exc:
@@ -150,7 +155,8 @@ def _reports_kept(out_dir: Path, rewritten: dict[str, Path]) -> str:
             f"finish with: fviz eval --out-dir {out_dir} --resume")
 
 
-def _write_tables(out_dir: Path, config: RunConfig, columns: list[str], batch: int = 2000) -> _Stats:
+def _write_tables(out_dir: Path, config: RunConfig, columns: list[str], entries: list | None = None,
+                  batch: int = 2000) -> _Stats:
     import pyarrow as pa
     import pyarrow.parquet as pq
 
@@ -165,7 +171,7 @@ def _write_tables(out_dir: Path, config: RunConfig, columns: list[str], batch: i
             pw.write_table(pa.Table.from_pylist(pending, schema=schema))
             pending.clear()
 
-        for rec, _, rows in iter_rows(out_dir, config):
+        for rec, _, rows in iter_rows(out_dir, config, entries):
             stats.add(rec, rows)
             writer.writerows(rows)
             pending.extend(_typed(row, columns) for row in rows)
@@ -447,7 +453,7 @@ def run_markdown(config: RunConfig, stats: _Stats) -> str:
                       "of the pairs below each threshold), and with `--full` the pairs' images. Every figure: summary.md."])
 
 
-def write_recording(path: Path, out_dir: Path, config: RunConfig, summary: str = "") -> Path:
+def write_recording(path: Path, out_dir: Path, config: RunConfig, summary: str = "", entries: list | None = None) -> Path:
     """eval.rrd: every pair on the ``pair`` timeline with its metric series and motion tracks, the cumulative
     error curves and the run's figures (``summary``); with ``--full`` (and a saved payload) also inspect's
     images, keypoints and lines, images re-read from the source."""
@@ -461,18 +467,20 @@ def write_recording(path: Path, out_dir: Path, config: RunConfig, summary: str =
     source = config.selection.source() if config.full else None
     names = config.series_names()
     sizes = None
+    if entries is None:
+        entries = list(ResultStore(out_dir, config).latest().values())
     if config.full:
-        first = next((r["result"]["pair"] for r in ResultStore(out_dir, config).records() if r.get("result")), None)
+        first = next((r["result"]["pair"] for r in read_records(entries) if r.get("result")), None)
         if first is not None:
             sizes = (tuple(first["size_a"]), tuple(first["size_b"]))
-    values = series_values(result for _, result, _ in iter_rows(out_dir, config))  # the plots' ranges first
+    values = series_values(result for _, result, _ in iter_rows(out_dir, config, entries))  # the plots' ranges first
     curves = {key: values.get(L.metric(key), {}) for key, *_ in CURVE_METRICS}  # none before the first pair
     bp = L.blueprint(names, sizes, single_pair=False, ranges=ranges_of_values(values), curves=True, run_summary=True)
     with RecordingWriter(path, "fviz-eval", bp) as w:
         log_static(w.rec, names, series=True, legend=sizes is not None)
         log_curves(w.rec, curves, L.estimator_colors(names))
         w.rec.log(L.RUN_SUMMARY, rr.TextDocument(summary or "", media_type="text/markdown"), static=True)
-        for rec, result, _ in iter_rows(out_dir, config):
+        for rec, result, _ in iter_rows(out_dir, config, entries):
             payload = payload_path(out_dir, rec["index"])
             if source is not None and rec.get("result") is not None and payload_ok(payload):
                 pair = source.load(PairId(**{k: v for k, v in rec["ref"].items() if k != "name"}))
