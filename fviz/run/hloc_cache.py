@@ -231,6 +231,18 @@ def _pixel_digest(pair, side: str) -> str:
     return digest(pair.image_a if side == "a" else pair.image_b)
 
 
+METADATA_CACHE_BYTES = 2 << 20
+
+
+def _small_metadata_cache(h5) -> None:
+    """Cap HDF5's metadata cache of a file being written (its default grows to 32 MB with the groups, ~35 KB a
+    pair: a run's memory would grow with its pairs)."""
+    config = h5.id.get_mdc_config()
+    config.set_initial_size, config.initial_size = True, METADATA_CACHE_BYTES // 2
+    config.min_size, config.max_size = METADATA_CACHE_BYTES // 2, METADATA_CACHE_BYTES
+    h5.id.set_mdc_config(config)
+
+
 class CacheWriter:
     """Writes the entries of a run into temporary copies of features.h5 / matches.h5 as they come, and on
     :meth:`close` adds the previous files' other groups and renames the copies over them. A failure (disk
@@ -294,7 +306,9 @@ class CacheWriter:
             from fviz.atomic import prepare
 
             final, tmp = prepare(self.out_dir / file)
-            self._open[file] = (h5py.File(tmp, "w"), final, tmp)
+            h5 = h5py.File(tmp, "w")
+            _small_metadata_cache(h5)
+            self._open[file] = (h5, final, tmp)
             self._names[file] = set()
         return self._open[file][0]
 
