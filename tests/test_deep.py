@@ -34,11 +34,12 @@ def test_deep_estimator_in_inspect(tmp_path):
     doc = json.loads(proc.stdout)
     names = [e["name"] for e in doc["estimators"]]
     assert names == ["gt", "deep", "deep-fviz-deep", "8point"]
-    deep, same = (np.array(doc["estimators"][i]["F"]) for i in (1, 2))
-    np.testing.assert_allclose(deep, same)
-    s = np.linalg.svd(deep, compute_uv=False)
-    assert s[2] < 1e-6 * s[0]  # REC head: rank 2 by construction
-    assert doc["estimators"][1]["metrics"]["f_dist"] < 0.5
+    deep, one_pass = (np.array(doc["estimators"][i]["F"]) for i in (1, 2))
+    assert not np.allclose(deep, one_pass, atol=1e-4)  # plain deep averages the pair with its mirror image (K known)
+    for F in (deep, one_pass):
+        s = np.linalg.svd(F, compute_uv=False)
+        assert s[2] < 1e-6 * s[0]  # REC head, and the mean motion's [t]x R: rank 2 by construction
+    assert doc["estimators"][1]["metrics"]["f_dist"] < 0.5 and doc["estimators"][2]["metrics"]["f_dist"] < 0.5
     from rerun.chunk import RrdReader
 
     entities = {ch.entity_path for ch in RrdReader(out).stream().to_chunks()}

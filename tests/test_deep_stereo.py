@@ -32,12 +32,15 @@ def test_stereo_pairs_get_a_stereo_F_on_an_unseen_rig(seq04):
 
 
 def test_the_kind_picks_the_model_per_pair_and_in_batches(seq04):
+    from fviz.models.predict import predict_F
+    from fviz.models.weights import load_model
+
     deep = deep_estimator()
-    stereo, motion = deep_estimator(STEREO), deep_estimator(BUNDLED)
+    stereo, motion = deep_estimator(STEREO), load_model(BUNDLED, "cpu")[0]
     s, t = seq04.pair(2, "stereo", cams=(2, 3)), seq04.pair(2, "temporal", cams=(2, 2))
-    np.testing.assert_array_equal(deep(s, None, None), stereo(s, None, None))
-    np.testing.assert_array_equal(deep(t, None, None), motion(t, None, None))
-    assert not np.allclose(stereo(t, None, None), motion(t, None, None))
-    batch = deep_batch_predictor()([(s.image_a, s.image_b), (t.image_a, t.image_b)], [s.id.kind, t.id.kind])
+    np.testing.assert_array_equal(deep(s, None, None), stereo(s, None, None))  # stereo: one pass, not mirrored
+    np.testing.assert_array_equal(deep(t, None, None), predict_F(motion, t.image_a, t.image_b, (t.K_a, t.K_b)))
+    assert not np.allclose(stereo(t, None, None), deep(t, None, None))
+    batch = deep_batch_predictor()([s, t])
     np.testing.assert_allclose(batch[0], deep(s, None, None), atol=1e-5)
     np.testing.assert_allclose(batch[1], deep(t, None, None), atol=1e-5)

@@ -2,7 +2,10 @@
 
 - ``deep``: the bundled models (see ``assets/MANIFEST.json``), chosen by the pair's kind: stereo pairs
   (two cameras of one rig at one time) go to ``assets/fviz-deep-stereo.pt``, every other pair to
-  ``assets/fviz-deep.pt``.  Why two: a rectified rig has one F, so a stereo network learns that rig's
+  ``assets/fviz-deep.pt``, which also sees the pair mirrored when the cameras are known and gives the F of
+  the mean of its two motions (:func:`fviz.models.predict.predict_F_batch`; on held-out KITTI its median SED
+  fell 16-32 %, README "Mirrored pairs"); ``deep:PATH`` and ``deep:synthetic`` give a network's single
+  prediction, as trained.  Why two models: a rectified rig has one F, so a stereo network learns that rig's
   lateral baseline, while a motion network must follow the car; trained on both kinds at once, one
   network traded its temporal accuracy for a stereo F it did not reach (README, "The paper's experiment").
   ``$FVIZ_WEIGHTS`` names one file for every pair instead;
@@ -42,47 +45,54 @@ def named_weights(name: str) -> Path | None:
     return None
 
 
-def _models(path: str | Path | None, device: str) -> dict[str, object]:
-    """{pair kind or "": model} of a ``deep`` spec: the bundled pair for plain ``deep``, else one model."""
+def _models(path: str | Path | None, device: str) -> tuple[dict[str, object], set[str]]:
+    """({pair kind or "": model} of a ``deep`` spec: the bundled pair for plain ``deep``, else one model;
+    the kinds whose pairs are also predicted mirrored: the bundled motion model's)."""
     from fviz.models.weights import load_model
 
     if path:
         path = named_weights(str(path)) or Path(path)
     elif WEIGHTS_ENV not in os.environ and STEREO.is_file():
-        return {"": load_model(bundled_weights(), device)[0], "stereo": load_model(STEREO, device)[0]}
+        return {"": load_model(bundled_weights(), device)[0], "stereo": load_model(STEREO, device)[0]}, {""}
     else:
         path = bundled_weights()
-    return {"": load_model(path, device)[0]}  # one-line errors naming the file (missing, a folder, not a model)
+    return {"": load_model(path, device)[0]}, set()  # one-line errors naming the file (missing, a folder, not a model)
+
+
+def _cameras(pair, mirrored: bool):
+    """(K_a, K_b) where the pair is to be predicted mirrored too (its cameras known), else None."""
+    return (pair.K_a, pair.K_b) if mirrored and pair.has_K else None
 
 
 def deep_estimator(path: str | Path | None = None, device: str = "cpu"):
     """An estimator (pair, x_a, x_b) -> F that ignores the matches."""
     from fviz.models.predict import predict_F
 
-    models = _models(path, device)
+    models, mirror = _models(path, device)
 
     def estimate(pair, x_a, x_b):
-        model = models.get(pair.id.kind, models[""])
-        return predict_F(model, pair.image_a, pair.image_b)
+        kind = pair.id.kind if pair.id.kind in models else ""
+        return predict_F(models[kind], pair.image_a, pair.image_b, _cameras(pair, kind in mirror))
 
     return estimate
 
 
 def deep_batch_predictor(path: str | Path | None = None, device: str = "cpu"):
-    """``predict(image_pairs, kinds) -> [F]``: the model(s) of :func:`deep_estimator` run on many pairs at
-    once on ``device`` (what ``fviz eval`` does on a GPU); ``kinds``: each pair's kind (None: all general)."""
+    """``predict(pairs) -> [F]``: the model(s) of :func:`deep_estimator` run on many pairs (:class:`fviz.data.pair.Pair`)
+    at once on ``device`` (what ``fviz eval`` does on a GPU)."""
     from fviz.models.predict import predict_F_batch
 
     if path and not Path(path).is_file() and named_weights(str(path)) is None:
         raise FvizError(f"--estimator deep:{path}: no such file")
-    models = _models(path, device)
+    models, mirror = _models(path, device)
 
-    def predict(image_pairs, kinds=None):
-        kinds = [k if k in models else "" for k in (kinds or [""] * len(image_pairs))]
-        out: list = [None] * len(image_pairs)
+    def predict(pairs):
+        kinds = [p.id.kind if p.id.kind in models else "" for p in pairs]
+        out: list = [None] * len(pairs)
         for kind, model in models.items():
             idx = [i for i, k in enumerate(kinds) if k == kind]
-            for i, F in zip(idx, predict_F_batch(model, [image_pairs[i] for i in idx])):
+            batch = [(pairs[i].image_a, pairs[i].image_b) for i in idx]
+            for i, F in zip(idx, predict_F_batch(model, batch, [_cameras(pairs[i], kind in mirror) for i in idx])):
                 out[i] = F
         return out
 

@@ -25,11 +25,13 @@ from fviz.geometry.fundamental import (
 from fviz.geometry.pose import (
     AUC_THRESHOLDS_DEG,
     essential_from_fundamental,
+    mean_motion_f,
     nearest_rotation,
     pose_auc,
     recover_pose,
     rotation_angle_deg,
     rotation_error_deg,
+    small_motion,
     translation_error_deg,
 )
 from fviz.geometry.precision import PRECISION_KEYS, match_precision, normalized_epipolar_distance
@@ -37,7 +39,7 @@ from fviz.geometry.residuals import algebraic, epipolar_residuals, sampson_dista
 
 __all__ = [
     "AUC_THRESHOLDS_DEG", "NSGD_RECALL_THRESHOLD", "essential_from_fundamental", "nearest_rotation", "gt_inlier_ratio", "nsgd", "pose_auc",
-    "recover_pose", "rotation_angle_deg", "rotation_error_deg", "translation_error_deg",
+    "recover_pose", "rotation_angle_deg", "rotation_error_deg", "translation_error_deg", "small_motion", "mean_motion_f",
     "NORMS", "Epipole", "NormalizationError", "algebraic",
     "epipolar_residuals", "border_point", "clip_lines", "describe_epipole",
     "enforce_rank2", "epipoles", "f_distance", "fundamental_from_motion", "fundamental_from_projections",

@@ -41,6 +41,30 @@ def recover_pose(F: np.ndarray, K_a: np.ndarray, K_b: np.ndarray, x_a: np.ndarra
     return R, t / np.linalg.norm(t)
 
 
+def small_motion(F: np.ndarray, K_a: np.ndarray, K_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(R, t) of E = K_b^T F K_a = [t]x R whose rotation is the one nearer the identity (of U W V^T and
+    U W^T V^T, Hartley & Zisserman 9.6.2; consecutive frames turn little), t unit, its sign unknown."""
+    U, _, Vt = np.linalg.svd(essential_from_fundamental(F, K_a, K_b))
+    U, Vt = U * np.sign(np.linalg.det(U)), Vt * np.sign(np.linalg.det(Vt))
+    W = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    R = min((U @ W @ Vt, U @ W.T @ Vt), key=rotation_angle_deg)
+    return R, U[:, 2]
+
+
+def mean_motion_f(Fs: list[np.ndarray], K_a: np.ndarray, K_b: np.ndarray) -> np.ndarray:
+    """F of the mean of the motions (:func:`small_motion`) of several F's of one pair: the rotations averaged
+    (the nearest rotation to their mean), the translations' signs aligned with the first's, then averaged.
+    (3, 3) each -> (3, 3), unit Frobenius norm. Unlike a mean of the F's, it keeps each F's rotation however
+    far their epipoles lie apart."""
+    from fviz.geometry.fundamental import fundamental_from_motion
+
+    motions = [small_motion(F, K_a, K_b) for F in Fs]
+    t0 = motions[0][1]
+    t = sum(t if t @ t0 >= 0 else -t for _, t in motions)
+    F = fundamental_from_motion(K_a, K_b, nearest_rotation(sum(R for R, _ in motions) / len(motions)), t / np.linalg.norm(t))
+    return F / np.linalg.norm(F)
+
+
 def nearest_rotation(M: np.ndarray) -> np.ndarray:
     """The rotation closest to M in Frobenius norm, by SVD (KITTI's poses are printed to ~1e-6: their R^T R
     misses I by enough for a 0.02 deg error floor).  (..., 3, 3) -> (..., 3, 3)."""

@@ -58,55 +58,64 @@ def to_model_input(image: np.ndarray, input_hw: tuple[int, int]) -> np.ndarray:
     return small.astype(np.float32) * np.float32(scale)
 
 
-def predict_F(model, image_a: np.ndarray, image_b: np.ndarray) -> np.ndarray:
+def flip_matrix(width: int) -> np.ndarray:
+    """Horizontal mirror of an image ``width`` pixels wide (pixel centres at integers): x' = W - 1 - x.  (3, 3)."""
+    return np.array([[-1.0, 0.0, width - 1.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+
+
+def predict_F(model, image_a: np.ndarray, image_b: np.ndarray, cameras=None) -> np.ndarray:
     """F (3, 3) float64, FBN-normalized, in pixels of the given (full-resolution) images.
 
     image_a, image_b: uint8 (H, W) or (H, W, 3) RGB, any size (each is resized to the model input).
+    cameras: (K_a, K_b) to average the prediction with the mirrored pair's (:func:`predict_F_batch`).
     Raises FvizError (NormalizationError) when an ETR model predicts F33 ~ 0.
     """
+    return predict_F_batch(model, [(image_a, image_b)], [cameras])[0]
+
+
+def predict_F_batch(model, pairs: list[tuple[np.ndarray, np.ndarray]], cameras: list | None = None) -> list[np.ndarray]:
+    """:func:`predict_F` of several (image_a, image_b) pairs in one forward pass on the model's device
+    (the resizing runs on the CPU). Each F: (3, 3) float64, FBN-normalized, in its images' pixels.
+    The model is in eval mode (normalization layers use running statistics), so a pair's F does not
+    depend on the batch it is in.
+
+    cameras: per pair (K_a, K_b) or None. A pair with cameras is also predicted mirrored (both inputs flipped
+    left-right, which turns a left turn into a right one) and its F is that of the mean of the two motions
+    (:func:`fviz.geometry.mean_motion_f`, the mirrored F mapped back first): what a network gets wrong the
+    same way in both (a yaw bias, an asymmetry it learnt) cancels.
+    """
     import torch
+
+    if not pairs:
+        return []
+    from fviz.geometry import mean_motion_f
 
     hw = model.config.input_hw
     try:
         device = next(model.parameters()).device
     except StopIteration:  # pragma: no cover - a model without parameters
         device = torch.device("cpu")
-    a = torch.from_numpy(to_model_input(image_a, hw))[None, None].to(device)
-    b = torch.from_numpy(to_model_input(image_b, hw))[None, None].to(device)
+    cameras = list(cameras or [None] * len(pairs))
+    mirrored = [i for i, c in enumerate(cameras) if c is not None]
+    a = np.stack([to_model_input(ia, hw) for ia, _ in pairs])
+    b = np.stack([to_model_input(ib, hw) for _, ib in pairs])
+    a, b = (np.concatenate([x, x[mirrored, :, ::-1]]) for x in (a, b))  # resizing commutes with the mirror
     was_training = model.training
     model.eval()
     try:
         with torch.inference_mode():
-            F_small = model(a, b, strict_norm=True)[0].double().cpu().numpy()
+            F_small = model(torch.from_numpy(a)[:, None].to(device), torch.from_numpy(b)[:, None].to(device),
+                            strict_norm=True).double().cpu().numpy()
     finally:
         model.train(was_training)
-    size_a = (int(np.shape(image_a)[1]), int(np.shape(image_a)[0]))
-    size_b = (int(np.shape(image_b)[1]), int(np.shape(image_b)[0]))
-    return normalize(f_to_full(F_small, size_a, size_b, hw), "fbn")
-
-
-def predict_F_batch(model, pairs: list[tuple[np.ndarray, np.ndarray]]) -> list[np.ndarray]:
-    """:func:`predict_F` of several (image_a, image_b) pairs in one forward pass on the model's device
-    (the resizing runs on the CPU). Each F: (3, 3) float64, FBN-normalized, in its images' pixels.
-    The model is in eval mode (normalization layers use running statistics), so a pair's F does not
-    depend on the batch it is in."""
-    import torch
-
-    if not pairs:
-        return []
-    hw = model.config.input_hw
-    device = next(model.parameters()).device
-    a = torch.from_numpy(np.stack([to_model_input(ia, hw) for ia, _ in pairs]))[:, None].to(device)
-    b = torch.from_numpy(np.stack([to_model_input(ib, hw) for _, ib in pairs]))[:, None].to(device)
-    was_training = model.training
-    model.eval()
-    try:
-        with torch.inference_mode():
-            F_small = model(a, b, strict_norm=True).double().cpu().numpy()
-    finally:
-        model.train(was_training)
+    H = flip_matrix(hw[1])
+    back = {i: H.T @ F @ H for i, F in zip(mirrored, F_small[len(pairs):])}  # x_b^T (H^T F' H) x_a = (H x_b)^T F' (H x_a)
     out = []
-    for F, (ia, ib) in zip(F_small, pairs):
-        size_a, size_b = (int(ia.shape[1]), int(ia.shape[0])), (int(ib.shape[1]), int(ib.shape[0]))
-        out.append(normalize(f_to_full(F, size_a, size_b, hw), "fbn"))
+    for i, (ia, ib) in enumerate(pairs):
+        size_a, size_b = (int(np.shape(ia)[1]), int(np.shape(ia)[0])), (int(np.shape(ib)[1]), int(np.shape(ib)[0]))
+        F = f_to_full(F_small[i], size_a, size_b, hw)
+        if i in back:
+            K_a, K_b = cameras[i]
+            F = mean_motion_f([F, f_to_full(back[i], size_a, size_b, hw)], np.asarray(K_a, float), np.asarray(K_b, float))
+        out.append(normalize(F, "fbn"))
     return out

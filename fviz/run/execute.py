@@ -252,36 +252,36 @@ class DeepBatches:
 
         pairs = [(i, pid) for i, pid in pairs if i not in self.results]
 
-        def images(pid):
+        def load(pid):
             try:
                 pair = self.source.load(pid)
-                return pair.image_a, pair.image_b
+                pair.image_a, pair.image_b  # decoded here, in parallel (decoding releases the GIL)
+                return pair
             except Exception as exc:
                 return _message(exc)
 
-        with ThreadPoolExecutor(4) as pool:  # decoding releases the GIL
-            loaded = list(pool.map(images, [pid for _, pid in pairs]))
+        with ThreadPoolExecutor(4) as pool:
+            loaded = list(pool.map(load, [pid for _, pid in pairs]))
         for i, _ in pairs:
             self.results[i] = {}
-        ok = [(i, im) for (i, _), im in zip(pairs, loaded) if not isinstance(im, str)]
-        kinds = {i: pid.kind for i, pid in pairs}
-        for (i, _), im in zip(pairs, loaded):
-            if isinstance(im, str):
-                self.results[i] = {name: (im, 0.0) for name in self.predictors}
+        ok = [(i, p) for (i, _), p in zip(pairs, loaded) if not isinstance(p, str)]
+        for (i, _), p in zip(pairs, loaded):
+            if isinstance(p, str):
+                self.results[i] = {name: (p, 0.0) for name in self.predictors}
         for name, predict in self.predictors.items():
             t0 = time.perf_counter()
             try:
-                Fs = predict([im for _, im in ok], [kinds[i] for i, _ in ok])
+                Fs = predict([p for _, p in ok])
             except Exception:  # one pair's failure (e.g. ETR of F33 = 0) must not fail the batch
-                Fs = [self._one(predict, im, kinds[i]) for i, im in ok]
+                Fs = [self._one(predict, p) for _, p in ok]
             share = (time.perf_counter() - t0) / max(1, len(ok))
             for (i, _), F in zip(ok, Fs):
                 self.results[i][name] = (F, share)
 
     @staticmethod
-    def _one(predict, images, kind):
+    def _one(predict, pair):
         try:
-            return predict([images], [kind])[0]
+            return predict([pair])[0]
         except Exception as exc:
             return _message(exc)
 

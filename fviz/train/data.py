@@ -43,6 +43,7 @@ import torch
 
 from fviz.errors import FvizError
 from fviz.geometry.fundamental import NormalizationError, normalize
+from fviz.models.predict import flip_matrix
 
 MAX_CACHED_FRAMES = 4000  # decoded KITTI frames kept per process (~1.9 GB at 1242 x 375)
 SEED_SPAN = 10**7  # synthetic seeds of one recipe seed: [base, base + SEED_SPAN)
@@ -243,11 +244,6 @@ class Augment:
 def translation(dx: float, dy: float) -> np.ndarray:
     """x' = x + (dx, dy).  (3, 3)."""
     return np.array([[1.0, 0.0, dx], [0.0, 1.0, dy], [0.0, 0.0, 1.0]])
-
-
-def flip_matrix(width: int) -> np.ndarray:
-    """Horizontal mirror of an image ``width`` pixels wide (pixel centres at integers): x' = W - 1 - x.  (3, 3)."""
-    return np.array([[-1.0, 0.0, width - 1.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
 
 
 def transform_f(F: np.ndarray, A_a: np.ndarray, A_b: np.ndarray) -> np.ndarray:

@@ -53,10 +53,9 @@ def yaw_deg(R: np.ndarray) -> float:
 
 def yaw_of_f(F: np.ndarray, K_a: np.ndarray, K_b: np.ndarray) -> float:
     """Yaw of the rotation of E closer to identity (driving: frame-to-frame rotations are small)."""
-    from fviz.geometry.pose import rotation_angle_deg
+    from fviz.geometry.pose import small_motion
 
-    R = min(_rotations_of_f(F, K_a, K_b), key=rotation_angle_deg)
-    return yaw_deg(R)
+    return yaw_deg(small_motion(F, K_a, K_b)[0])
 
 
 def straight_ahead_f(pair, x_a=None, x_b=None) -> np.ndarray:

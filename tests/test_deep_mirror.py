@@ -1,0 +1,93 @@
+"""``-e deep`` on a pair with cameras also predicts the mirrored pair and gives the F of the mean of the two
+motions. Checked against an independent path (OpenCV mirrors the full-resolution images, the mirrored F is
+mapped back by the pixel mirror), the mean motion against its closed form, and on held-out KITTI drives
+(odometry 04 of the samples: never trained on) that it is closer to the ground truth than one pass."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from fviz.estimators.deep import BUNDLED, deep_estimator
+from fviz.geometry import fundamental_from_motion, mean_motion_f, nearest_rotation, small_motion
+from fviz.models.predict import flip_matrix, predict_F
+from fviz.models.weights import load_model
+
+pytestmark = pytest.mark.usefixtures("torch_one_thread")
+K = np.array([[718.856, 0.0, 607.19], [0.0, 718.856, 185.22], [0.0, 0.0, 1.0]])
+
+
+def rot(axis, deg):
+    axis = np.asarray(axis, float)
+    return cv2.Rodrigues(axis / np.linalg.norm(axis) * np.radians(deg))[0]
+
+
+def same_f(F1, F2, atol):
+    F1, F2 = F1 / np.linalg.norm(F1), F2 / np.linalg.norm(F2)
+    assert min(np.abs(F1 - F2).max(), np.abs(F1 + F2).max()) < atol
+
+
+def test_small_motion_recovers_the_motion_of_an_exact_f():
+    R, t = rot([0.1, 1, 0.05], 1.5), np.array([0.02, -0.01, -0.9])
+    R_est, t_est = small_motion(-3.0 * fundamental_from_motion(K, K, R, t), K, K)  # any scale and sign
+    np.testing.assert_allclose(R_est, R, atol=1e-9)
+    np.testing.assert_allclose(np.abs(t_est @ t) / np.linalg.norm(t), 1.0, atol=1e-12)
+
+
+def test_the_mean_motion_is_the_closed_form_mean_whatever_the_signs():
+    (R1, t1), (R2, t2) = (rot([0, 1, 0], 1.0), np.array([0.05, 0.0, -1.0])), (rot([0.2, 1, 0], 0.4), np.array([-0.03, 0.01, -1.0]))
+    t1, t2 = t1 / np.linalg.norm(t1), t2 / np.linalg.norm(t2)
+    F = mean_motion_f([fundamental_from_motion(K, K, R1, t1), -7.0 * fundamental_from_motion(K, K, R2, -t2)], K, K)
+    t = (t1 + t2) / np.linalg.norm(t1 + t2)
+    same_f(F, fundamental_from_motion(K, K, nearest_rotation((R1 + R2) / 2), t), 1e-9)
+    assert abs(np.linalg.norm(F) - 1.0) < 1e-12
+
+
+@pytest.fixture(scope="module")
+def seq04(kitti_root):
+    from fviz.data.kitti import open_dataset
+
+    return open_dataset(kitti_root, sequence="04")
+
+
+def test_deep_averages_the_pair_with_its_mirror_image(seq04):
+    """The resized inputs are mirrored (resizing commutes with the mirror); the independent path mirrors the
+    full images with OpenCV and maps the F back with x' = W - 1 - x in both images."""
+    model = load_model(BUNDLED, "cpu")[0]
+    pair = seq04.pair(5, "temporal", cams=(2, 2))
+    a, b = pair.image_a, pair.image_b
+    single = predict_F(model, a, b)
+    F_mirror = predict_F(model, cv2.flip(a, 1), cv2.flip(b, 1))
+    back = flip_matrix(b.shape[1]).T @ F_mirror @ flip_matrix(a.shape[1])
+    expected = mean_motion_f([single, back], pair.K_a, pair.K_b)
+    got = deep_estimator()(pair, None, None)
+    same_f(got, expected, 2e-4)
+    assert not np.allclose(got, single, atol=1e-3)  # the mirror changed the answer
+    yaw = lambda F: np.degrees(np.arctan2(small_motion(F, pair.K_a, pair.K_b)[0][0, 2], small_motion(F, pair.K_a, pair.K_b)[0][2, 2]))  # noqa: E731
+    assert min(yaw(single), yaw(back)) - 1e-6 <= yaw(got) <= max(yaw(single), yaw(back)) + 1e-6  # between the two passes
+
+
+def test_a_pair_without_cameras_gets_one_pass(seq04):
+    from dataclasses import replace
+
+    model = load_model(BUNDLED, "cpu")[0]
+    pair = seq04.pair(5, "temporal", cams=(2, 2))
+    bare = replace(pair, K_a=None, K_b=None, R=None, t=None, F_gt=None)
+    np.testing.assert_array_equal(deep_estimator()(bare, None, None), predict_F(model, pair.image_a, pair.image_b))
+
+
+def test_mirroring_brings_deep_closer_to_the_ground_truth_on_held_out_pairs(seq04):
+    """Median SED on the evaluation matches of the 18 temporal pairs of 04's sample (cameras 2 and 3): lower
+    with the mirror (measured on whole held-out drives: 04 1.38 -> 0.93 px, raw 0013 1.41 -> 1.15, 0005 2.17 -> 1.83)."""
+    from fviz.evaluate import evaluate_pair
+    from fviz.estimators.deep import deep_estimator as make
+
+    model = load_model(BUNDLED, "cpu")[0]
+    single = lambda p, xa, xb: predict_F(model, p.image_a, p.image_b)  # noqa: E731
+    sed = {"deep": [], "single": []}
+    for frame, cam in [(f, c) for f in range(9) for c in (2, 3)]:
+        r = evaluate_pair(seq04.pair(frame, "temporal", cams=(cam, cam)), [("deep", make()), ("single", single)])
+        for name in sed:
+            sed[name].append(r.get(name).metrics["sed_median"])
+    assert np.median(sed["deep"]) < np.median(sed["single"]), sed
