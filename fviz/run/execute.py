@@ -529,9 +529,11 @@ def pool_size(workers: int, n_pairs: int) -> int:
 
 
 def _execute(config: RunConfig, todo: list[tuple[int, PairId]], pool: WorkerPool | None, out_dir: Path,
-             on_record: Callable[[dict], None], interrupts: Interrupts, only: dict[str, tuple[str, ...]] | None = None) -> None:
+             on_record: Callable[[dict], None], interrupts: Interrupts, only: dict[str, tuple[str, ...]] | None = None,
+             on_started: Callable[[], None] = lambda: None) -> None:
     """Evaluate ``todo``, calling ``on_record`` in this process as each pair finishes; a pair named in
-    ``only`` runs just those estimators.
+    ``only`` runs just those estimators; ``on_started`` once the first pair is under way (what this process
+    does then no longer delays it).
 
     Without a pool (or for too few pairs): in this process. Else the pool, fed by a :class:`FrameSchedule`.
     After the first interrupt no pair starts; after the second, pairs in flight are abandoned.
@@ -552,6 +554,7 @@ def _execute(config: RunConfig, todo: list[tuple[int, PairId]], pool: WorkerPool
             pool.close(kill=True)
         evaluator = PairEvaluator(config, out_dir, batched=batched)
         interrupts.raise_from = 2  # the second interrupt abandons the pair in flight
+        on_started()
         try:
             while interrupts.count == 0 and (task := next_task()) is not None:
                 rec, kept = evaluator.run_task(task)
@@ -561,7 +564,7 @@ def _execute(config: RunConfig, todo: list[tuple[int, PairId]], pool: WorkerPool
             interrupts.raise_from = None
         return
     pool.configure(config, out_dir, workers, batched)
-    abandoned = False
+    abandoned = started = False
     try:
         while True:
             if interrupts.count == 0:
@@ -570,6 +573,9 @@ def _execute(config: RunConfig, todo: list[tuple[int, PairId]], pool: WorkerPool
                     if task is None:
                         break
                     pool.submit(slot, task)
+                    if not started:
+                        started = True
+                        on_started()
             if not pool.tasks and (interrupts.count or not len(schedule)):
                 return
             if interrupts.count >= 2:
@@ -598,8 +604,8 @@ def _check_resume(out_dir: Path, config: RunConfig, resume: bool) -> None:
 
 
 class _Progress:
-    """eval's progress bar (rich), started when the first pair finishes: rich's import (~0.25 s) then happens
-    while the workers detect, not before the first pair starts. Nothing at all when disabled."""
+    """eval's progress bar (rich), shown once the first pair is under way (:meth:`show`): rich's import (~0.1 s)
+    then overlaps the workers' first detections instead of delaying them. Nothing at all when disabled."""
 
     def __init__(self, enabled: bool, total: int, completed: int):
         self.enabled, self.total, self.completed = enabled, total, completed
@@ -608,10 +614,8 @@ class _Progress:
     def __enter__(self) -> "_Progress":
         return self
 
-    def advance(self) -> None:
-        if not self.enabled:
-            return
-        if self.bar is None:
+    def show(self) -> None:
+        if self.enabled and self.bar is None:
             from rich.console import Console
             from rich.progress import (
                 BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn,
@@ -622,7 +626,11 @@ class _Progress:
                                 console=Console(stderr=True))
             self.bar.start()
             self.task = self.bar.add_task("eval", total=self.total, completed=self.completed)
-        self.bar.advance(self.task)
+
+    def advance(self) -> None:
+        self.show()
+        if self.bar is not None:
+            self.bar.advance(self.task)
 
     def __exit__(self, *exc) -> None:
         if self.bar is not None:
@@ -736,14 +744,16 @@ def _run(config: RunConfig, out_dir: Path, pool: WorkerPool | None, resume: bool
         outcome.failed += rec["error"] is not None
         outcome.detections += rec["detections"]
         bar.advance()
-        if outcome.computed == 1:
-            _preload_reports()  # now that the workers are busy, not before their first pairs start
+
+    def on_started() -> None:  # the workers are busy: what this process imports now delays no pair
+        bar.show()
+        _preload_reports()
 
     writer = CacheWriter(out_dir)
     with Interrupts() as interrupts:
         with _Progress(progress, len(pairs), outcome.reused) as bar:
             try:
-                _execute(config, todo, pool, out_dir, on_record, interrupts, only)
+                _execute(config, todo, pool, out_dir, on_record, interrupts, only, on_started)
             except KeyboardInterrupt:
                 pass
             except WriteError as exc:
