@@ -28,22 +28,12 @@ import numpy as np
 STRAIGHT_YAW_DEG = 0.2
 
 
-def _rotations_of_f(F: np.ndarray, K_a: np.ndarray, K_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The two rotations of E = K_b^T F K_a = U diag(1, 1, 0) V^T: U W V^T and U W^T V^T (Hartley & Zisserman 9.6.2;
-    float64 throughout: OpenCV's decomposeEssentialMat was off by 0.017 deg on exact KITTI ground truth)."""
-    U, _, Vt = np.linalg.svd(K_b.T @ F @ K_a)
-    U = U * np.sign(np.linalg.det(U))
-    Vt = Vt * np.sign(np.linalg.det(Vt))
-    W = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
-    return U @ W @ Vt, U @ W.T @ Vt
-
-
 def rotation_error_deg(F: np.ndarray, K_a: np.ndarray, K_b: np.ndarray, R_gt: np.ndarray) -> float:
     """Angle (deg) between R_gt and the closer of E's two rotations (E = K_b^T F K_a)."""
-    from fviz.geometry.pose import nearest_rotation, rotation_angle_deg
+    from fviz.geometry.pose import essential_decomposition, nearest_rotation, rotation_angle_deg
 
     R_gt = nearest_rotation(R_gt)
-    return min(float(rotation_angle_deg(R @ R_gt.T)) for R in _rotations_of_f(F, K_a, K_b))
+    return min(float(rotation_angle_deg(R @ R_gt.T)) for R in essential_decomposition(F, K_a, K_b)[:2])
 
 
 def yaw_deg(R: np.ndarray) -> float:
