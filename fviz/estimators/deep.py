@@ -2,16 +2,18 @@
 
 - ``deep``: the bundled models (see ``assets/MANIFEST.json``), chosen by the pair's kind: stereo pairs
   (two cameras of one rig at one time) go to ``assets/fviz-deep-stereo.pt``, every other pair to
-  ``assets/fviz-deep.pt``, which also sees the pair mirrored when the cameras are known and gives the F of
-  the mean of its two motions (:func:`fviz.models.predict.predict_F_batch`; on held-out KITTI its median SED
-  fell 16-32 %, README "Mirrored pairs"); ``deep:PATH`` and ``deep:synthetic`` give a network's single
-  prediction, as trained.  Why two models: a rectified rig has one F, so a stereo network learns that rig's
-  lateral baseline, while a motion network must follow the car; trained on both kinds at once, one
-  network traded its temporal accuracy for a stereo F it did not reach (README, "The paper's experiment").
+  ``assets/fviz-deep.pt``, which also sees the pair mirrored and reversed when the cameras are known and
+  gives the F of the mean of its three motions (:func:`fviz.models.predict.predict_F_batch`; README
+  "Mirrored and reversed pairs": held-out median SED 30-60 % lower, worse on the highway validation).
+  Why two models: a rectified rig has one F, so a stereo network learns that rig's lateral baseline,
+  while a motion network must follow the car; trained on both kinds at once, one network traded its
+  temporal accuracy for a stereo F it did not reach (README, "The paper's experiment").
   ``$FVIZ_WEIGHTS`` names one file for every pair instead;
 - ``deep:synthetic``: the model trained on synthetic scenes only (``assets/fviz-deep-synthetic.pt``
   once KITTI-trained weights take ``fviz-deep.pt``; until then the bundled model is that one);
 - ``deep:PATH``: any checkpoint or exported weights file.
+
+``deep:synthetic`` and ``deep:PATH`` give a network's single prediction, as trained.
 
 The model loads once; each call resizes the pair to the model's input and maps F back to the
 original pixels (x_b^T F x_a = 0).

@@ -80,9 +80,10 @@ def predict_F_batch(model, pairs: list[tuple[np.ndarray, np.ndarray]], cameras: 
     depend on the batch it is in.
 
     cameras: per pair (K_a, K_b) or None. A pair with cameras is also predicted mirrored (both inputs flipped
-    left-right, which turns a left turn into a right one) and its F is that of the mean of the two motions
-    (:func:`fviz.geometry.mean_motion_f`, the mirrored F mapped back first): what a network gets wrong the
-    same way in both (a yaw bias, an asymmetry it learnt) cancels.
+    left-right, which turns a left turn into a right one) and swapped ((b, a): the inverse motion), and its F
+    is that of the mean of the three motions (:func:`fviz.geometry.mean_motion_f`, each F mapped back to a -> b
+    first): what a network gets wrong the same way whichever way it sees the pair (a yaw bias, a learnt
+    asymmetry, a drift towards the motions it saw most) cancels.
     """
     import torch
 
@@ -96,10 +97,10 @@ def predict_F_batch(model, pairs: list[tuple[np.ndarray, np.ndarray]], cameras: 
     except StopIteration:  # pragma: no cover - a model without parameters
         device = torch.device("cpu")
     cameras = list(cameras or [None] * len(pairs))
-    mirrored = [i for i, c in enumerate(cameras) if c is not None]
+    seen = [i for i, c in enumerate(cameras) if c is not None]  # also seen mirrored and swapped
     a = np.stack([to_model_input(ia, hw) for ia, _ in pairs])
     b = np.stack([to_model_input(ib, hw) for _, ib in pairs])
-    a, b = (np.concatenate([x, x[mirrored, :, ::-1]]) for x in (a, b))  # resizing commutes with the mirror
+    a, b = np.concatenate([a, a[seen, :, ::-1], b[seen]]), np.concatenate([b, b[seen, :, ::-1], a[seen]])  # resizing commutes with the mirror
     was_training = model.training
     model.eval()
     try:
@@ -108,14 +109,15 @@ def predict_F_batch(model, pairs: list[tuple[np.ndarray, np.ndarray]], cameras: 
                             strict_norm=True).double().cpu().numpy()
     finally:
         model.train(was_training)
-    H = flip_matrix(hw[1])
-    back = {i: H.T @ F @ H for i, F in zip(mirrored, F_small[len(pairs):])}  # x_b^T (H^T F' H) x_a = (H x_b)^T F' (H x_a)
+    H, n, k = flip_matrix(hw[1]), len(pairs), len(seen)
+    mirrored = {i: H.T @ F @ H for i, F in zip(seen, F_small[n:n + k])}  # x_b^T (H^T F' H) x_a = (H x_b)^T F' (H x_a)
+    swapped = {i: F.T for i, F in zip(seen, F_small[n + k:])}  # x_a^T F' x_b = 0: F'^T maps a to b
     out = []
     for i, (ia, ib) in enumerate(pairs):
         size_a, size_b = (int(np.shape(ia)[1]), int(np.shape(ia)[0])), (int(np.shape(ib)[1]), int(np.shape(ib)[0]))
         F = f_to_full(F_small[i], size_a, size_b, hw)
-        if i in back:
-            K_a, K_b = cameras[i]
-            F = mean_motion_f([F, f_to_full(back[i], size_a, size_b, hw)], np.asarray(K_a, float), np.asarray(K_b, float))
+        if i in mirrored:
+            K_a, K_b = (np.asarray(K, float) for K in cameras[i])
+            F = mean_motion_f([F, *(f_to_full(G[i], size_a, size_b, hw) for G in (mirrored, swapped))], K_a, K_b)
         out.append(normalize(F, "fbn"))
     return out
