@@ -265,10 +265,16 @@ def plot_boxes(rgb: np.ndarray, min_size: int = 120) -> list[tuple[int, int, int
     return sorted(boxes, key=lambda b: (b[1] // 100, b[0]))
 
 
+# A series line is 1 px, anti-aliased over two rows: at a sub-pixel height neither row is within 50 of its colour
+# (a flat line: 145 of 385 columns at 50, 263 at 80). 80 is still far from any other series' colour (the nearest
+# pair, magsac's orange and deep's red, are 125 apart).
+LINE_NEAR = 80
+
+
 def track(rgb: np.ndarray, box, color) -> tuple[int, float]:
     """(pixels of a series' colour in a plot, spread of its line: 10-90 % range of its per-column median height)."""
     x, y, w, h = box
-    hit = near(rgb[y: y + h, x: x + w], color, 50)
+    hit = near(rgb[y: y + h, x: x + w], color, LINE_NEAR)
     cols = [np.median(np.flatnonzero(hit[:, c])) for c in range(w) if hit[:, c].any()]
     return int(hit.sum()), (float(np.percentile(cols, 90) - np.percentile(cols, 10)) if len(cols) > 10 else 0.0)
 
