@@ -167,8 +167,6 @@ def _ray_angle_deg(K: np.ndarray, e1: np.ndarray, e2: np.ndarray) -> float:
 
 def epi_metrics(F: np.ndarray, x_a: np.ndarray, x_b: np.ndarray, norm: str) -> tuple[float, float]:
     """(EPI-ABS, EPI-SQR) as means over the given correspondences of F normalized by ``norm``."""
-    if len(x_a) == 0:
-        return float("nan"), float("nan")
     return _epi_of(algebraic(F, x_a, x_b), F, norm)
 
 
