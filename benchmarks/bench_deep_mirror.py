@@ -1,5 +1,5 @@
-"""Why ``-e deep`` sees a pair mirrored and reversed: the motion network on held-out KITTI drives, one pass
-against four ways of adding the mirrored and the reversed pair (README, "Mirrored and reversed pairs").
+"""Why ``-e deep`` sees a pair mirrored and reversed, its yaw scaled: the motion network on held-out KITTI drives, one pass
+against four ways of adding the mirrored and the reversed pair (README, "Mirrored and reversed pairs, and the yaw gain").
 
     python benchmarks/bench_deep_mirror.py --kitti-root ../kitti-train-data/odometry --test 04 --test 2011_09_26_drive_0005
 
@@ -10,8 +10,13 @@ and slope from E = K_b^T F K_a):
   rank 2 enforced);
 - ``mirror, mean motion``: the mean of the two motions (:func:`fviz.geometry.mean_motion_f`);
 - ``swapped, mean motion``: the pair (b, a) instead of the mirror, its F transposed;
-- ``mirror + swapped, mean motion``: both, what ``-e deep`` does;
+- ``mirror + swapped, mean motion``: both;
+- ``mirror + swapped, yaw x G``: that mean motion's yaw times G (``--yaw-gain``; what ``-e deep`` does with
+  the bundled gain of assets/MANIFEST.json, ``inference.yaw_gain``);
 - the straight-ahead constant.
+
+``--fit-yaw-gain`` first fits that gain on the recipe's training pairs (``data.sequences`` and ``data.drives``,
+step 1 forward; :func:`fviz.train.heldout.fit_yaw_gain`) and adds its row.
 Held-out pairs: ``--recipe``'s data settings (default: recipes/kitti_motion.toml, both gray cameras; README's
 table: ``--cameras 0``), temporal step 1 forward, of the ``--test`` sequences or drives.
 """
@@ -28,8 +33,9 @@ import numpy as np
 from common import KITTI_ROOT, PROJECT
 
 
-def variants(model):
-    """{row: estimator (pair, x_a, x_b) -> F} of the mirrored uses of ``model``."""
+def variants(model, gains=()):
+    """{row: estimator (pair, x_a, x_b) -> F} of the mirrored uses of ``model``, the yaw scaled by each of
+    ``gains`` in the last rows."""
     from fviz.geometry import enforce_rank2, mean_motion_f
     from fviz.models.predict import flip_matrix, predict_F_batch
 
@@ -51,6 +57,8 @@ def variants(model):
         "mirror, mean motion": lambda pair, x_a=None, x_b=None: mean_motion_f(passes(pair), pair.K_a, pair.K_b),
         "swapped, mean motion": lambda pair, x_a=None, x_b=None: mean_motion_f(passes(pair, False, True), pair.K_a, pair.K_b),
         "mirror + swapped, mean motion": lambda pair, x_a=None, x_b=None: mean_motion_f(passes(pair, True, True), pair.K_a, pair.K_b),
+        **{f"mirror + swapped, yaw x {g:g}": (lambda pair, x_a=None, x_b=None, g=g: mean_motion_f(passes(pair, True, True), pair.K_a, pair.K_b, g))
+           for g in gains},
     }
 
 
@@ -62,22 +70,39 @@ def main() -> int:
     ap.add_argument("--test", action="append", default=[], metavar="SEQ", required=True)
     ap.add_argument("--cameras", type=int, nargs="+", default=None, help="data.cameras (default: the recipe's)")
     ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--yaw-gain", type=float, action="append", default=[], metavar="G", help="add a row with the yaw times G")
+    ap.add_argument("--fit-yaw-gain", action="store_true", help="fit the gain on the recipe's training pairs first")
     args = ap.parse_args()
 
     import torch
 
     from fviz.models.weights import load_model
-    from fviz.train.heldout import evaluate_heldout, heldout_pairs, straight_ahead_f
+    from fviz.train.heldout import evaluate_heldout, fit_yaw_gain, heldout_pairs, straight_ahead_f
     from fviz.train.recipe import load_recipe
 
     torch.set_num_threads(args.threads)
     model = load_model(args.weights, "cpu")[0]
-    estimators = [*variants(model).items(), ("constant", straight_ahead_f)]
+
+    def recipe_of(names):
+        """The recipe with ``names`` as its held-out sequences: their step-1 forward pairs."""
+        return load_recipe(args.recipe, [f"data.root={json.dumps(args.kitti_root)}", "data.steps=[1]",
+                                         "data.both_directions=false", f"data.val_sequences={json.dumps(names)}",
+                                         "data.sequences=[]", "data.drives=[]",
+                                         *([f"data.cameras={args.cameras}"] if args.cameras else [])])
+
+    gains = list(args.yaw_gain)
+    if args.fit_yaw_gain:
+        training = load_recipe(args.recipe).data
+        names = [*training.sequences, *training.drives]
+        t0 = time.perf_counter()
+        pairs = list(heldout_pairs(recipe_of(names)))
+        gain, errors = fit_yaw_gain(model, pairs)
+        print(f"yaw gain fit on {', '.join(names)} ({len(pairs)} pairs, {time.perf_counter() - t0:.0f} s): {gain:g}")
+        print("  median rotation error, deg: " + ", ".join(f"x{g:g} {e:.3f}" for g, e in errors.items()))
+        gains.append(gain)
+    estimators = [*variants(model, gains).items(), ("constant", straight_ahead_f)]
     for test in args.test:
-        recipe = load_recipe(args.recipe, [f"data.root={json.dumps(args.kitti_root)}", "data.steps=[1]",
-                                           "data.both_directions=false", f"data.val_sequences={json.dumps([test])}",
-                                           "data.sequences=[]", "data.drives=[]",
-                                           *([f"data.cameras={args.cameras}"] if args.cameras else [])])
+        recipe = recipe_of([test])
         t0 = time.perf_counter()
         pairs = list(heldout_pairs(recipe))
         summary = evaluate_heldout(pairs, estimators)

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fviz.estimators.deep import BUNDLED, STEREO, deep_batch_predictor, deep_estimator
+from fviz.estimators.deep import BUNDLED, STEREO, bundled_yaw_gain, deep_batch_predictor, deep_estimator
 from fviz.evaluate import evaluate_pair
 
 pytestmark = pytest.mark.usefixtures("torch_one_thread")
@@ -39,7 +39,7 @@ def test_the_kind_picks_the_model_per_pair_and_in_batches(seq04):
     stereo, motion = deep_estimator(STEREO), load_model(BUNDLED, "cpu")[0]
     s, t = seq04.pair(2, "stereo", cams=(2, 3)), seq04.pair(2, "temporal", cams=(2, 2))
     np.testing.assert_array_equal(deep(s, None, None), stereo(s, None, None))  # stereo: one pass, not mirrored
-    np.testing.assert_array_equal(deep(t, None, None), predict_F(motion, t.image_a, t.image_b, (t.K_a, t.K_b)))
+    np.testing.assert_array_equal(deep(t, None, None), predict_F(motion, t.image_a, t.image_b, (t.K_a, t.K_b), bundled_yaw_gain()))
     assert not np.allclose(stereo(t, None, None), deep(t, None, None))
     batch = deep_batch_predictor()([s, t])
     np.testing.assert_allclose(batch[0], deep(s, None, None), atol=1e-5)

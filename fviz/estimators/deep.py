@@ -3,8 +3,9 @@
 - ``deep``: the bundled models (see ``assets/MANIFEST.json``), chosen by the pair's kind: stereo pairs
   (two cameras of one rig at one time) go to ``assets/fviz-deep-stereo.pt``, every other pair to
   ``assets/fviz-deep.pt``, which also sees the pair mirrored and reversed when the cameras are known and
-  gives the F of the mean of its three motions (:func:`fviz.models.predict.predict_F_batch`; README
-  "Mirrored and reversed pairs": held-out median SED 30-60 % lower, worse on the highway validation).
+  gives the F of the mean of its three motions, its yaw times the model's calibrated gain
+  (:func:`fviz.models.predict.predict_F_batch`, :func:`bundled_yaw_gain`; README "Mirrored and reversed
+  pairs": held-out median SED 30-60 % lower, rotation error 20-55 % lower).
   Why two models: a rectified rig has one F, so a stereo network learns that rig's lateral baseline,
   while a motion network must follow the car; trained on both kinds at once, one network traded its
   temporal accuracy for a stereo F it did not reach (README, "The paper's experiment").
@@ -47,18 +48,30 @@ def named_weights(name: str) -> Path | None:
     return None
 
 
-def _models(path: str | Path | None, device: str) -> tuple[dict[str, object], set[str]]:
+def bundled_yaw_gain() -> float:
+    """The bundled motion model's yaw gain (``assets/MANIFEST.json``, ``inference.yaw_gain``: fit on its
+    training drives by :func:`fviz.train.heldout.fit_yaw_gain`); 1 where the manifest does not name one."""
+    import json
+
+    try:
+        return float(json.loads((ASSETS / "MANIFEST.json").read_text())["inference"]["yaw_gain"]["value"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return 1.0
+
+
+def _models(path: str | Path | None, device: str) -> tuple[dict[str, object], dict[str, float]]:
     """({pair kind or "": model} of a ``deep`` spec: the bundled pair for plain ``deep``, else one model;
-    the kinds whose pairs are also predicted mirrored: the bundled motion model's)."""
+    {kind: yaw gain} of the kinds whose pairs are also predicted mirrored and reversed: the bundled motion model's)."""
     from fviz.models.weights import load_model
 
     if path:
         path = named_weights(str(path)) or Path(path)
     elif WEIGHTS_ENV not in os.environ and STEREO.is_file():
-        return {"": load_model(bundled_weights(), device)[0], "stereo": load_model(STEREO, device)[0]}, {""}
+        return ({"": load_model(bundled_weights(), device)[0], "stereo": load_model(STEREO, device)[0]},
+                {"": bundled_yaw_gain()})
     else:
         path = bundled_weights()
-    return {"": load_model(path, device)[0]}, set()  # one-line errors naming the file (missing, a folder, not a model)
+    return {"": load_model(path, device)[0]}, {}  # one-line errors naming the file (missing, a folder, not a model)
 
 
 def _cameras(pair, mirrored: bool):
@@ -70,11 +83,11 @@ def deep_estimator(path: str | Path | None = None, device: str = "cpu"):
     """An estimator (pair, x_a, x_b) -> F that ignores the matches."""
     from fviz.models.predict import predict_F
 
-    models, mirror = _models(path, device)
+    models, gains = _models(path, device)
 
     def estimate(pair, x_a, x_b):
         kind = pair.id.kind if pair.id.kind in models else ""
-        return predict_F(models[kind], pair.image_a, pair.image_b, _cameras(pair, kind in mirror))
+        return predict_F(models[kind], pair.image_a, pair.image_b, _cameras(pair, kind in gains), gains.get(kind, 1.0))
 
     return estimate
 
@@ -86,7 +99,7 @@ def deep_batch_predictor(path: str | Path | None = None, device: str = "cpu"):
 
     if path and not Path(path).is_file() and named_weights(str(path)) is None:
         raise FvizError(f"--estimator deep:{path}: no such file")
-    models, mirror = _models(path, device)
+    models, gains = _models(path, device)
 
     def predict(pairs):
         kinds = [p.id.kind if p.id.kind in models else "" for p in pairs]
@@ -94,7 +107,8 @@ def deep_batch_predictor(path: str | Path | None = None, device: str = "cpu"):
         for kind, model in models.items():
             idx = [i for i, k in enumerate(kinds) if k == kind]
             batch = [(pairs[i].image_a, pairs[i].image_b) for i in idx]
-            for i, F in zip(idx, predict_F_batch(model, batch, [_cameras(pairs[i], kind in mirror) for i in idx])):
+            cameras = [_cameras(pairs[i], kind in gains) for i in idx]
+            for i, F in zip(idx, predict_F_batch(model, batch, cameras, gains.get(kind, 1.0))):
                 out[i] = F
         return out
 

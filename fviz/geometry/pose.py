@@ -58,18 +58,36 @@ def small_motion(F: np.ndarray, K_a: np.ndarray, K_b: np.ndarray) -> tuple[np.nd
     return min((R1, R2), key=rotation_angle_deg), t
 
 
-def mean_motion_f(Fs: list[np.ndarray], K_a: np.ndarray, K_b: np.ndarray) -> np.ndarray:
+def mean_motion_f(Fs: list[np.ndarray], K_a: np.ndarray, K_b: np.ndarray, yaw_gain: float = 1.0) -> np.ndarray:
     """F of the mean of the motions (:func:`small_motion`) of several F's of one pair: the rotations averaged
     (the nearest rotation to their mean), the translations' signs aligned with the first's, then averaged.
     (3, 3) each -> (3, 3), unit Frobenius norm. Unlike a mean of the F's, it keeps each F's rotation however
-    far their epipoles lie apart."""
+    far their epipoles lie apart. ``yaw_gain`` multiplies the mean rotation's yaw (:func:`scale_yaw`)."""
     from fviz.geometry.fundamental import fundamental_from_motion
 
     motions = [small_motion(F, K_a, K_b) for F in Fs]
     t0 = motions[0][1]
     t = sum(t if t @ t0 >= 0 else -t for _, t in motions)
-    F = fundamental_from_motion(K_a, K_b, nearest_rotation(sum(R for R, _ in motions) / len(motions)), t / np.linalg.norm(t))
+    R = scale_yaw(nearest_rotation(sum(R for R, _ in motions) / len(motions)), yaw_gain)
+    F = fundamental_from_motion(K_a, K_b, R, t / np.linalg.norm(t))
     return F / np.linalg.norm(F)
+
+
+def yaw_deg(R: np.ndarray) -> np.ndarray:
+    """Rotation about the camera's y axis (down), degrees: atan2(R[0, 2], R[2, 2]); positive turns the optical
+    axis towards +x.  (..., 3, 3) -> (...)."""
+    R = np.asarray(R, np.float64)
+    return np.degrees(np.arctan2(R[..., 0, 2], R[..., 2, 2]))
+
+
+def scale_yaw(R: np.ndarray, gain: float) -> np.ndarray:
+    """R turned about the camera's y axis until its yaw is ``gain`` times R's: R_y((gain - 1) psi) R, psi =
+    :func:`yaw_deg` (R_y(a) R has yaw psi + a exactly; pitch and roll are kept).  (3, 3) -> (3, 3)."""
+    if gain == 1.0:
+        return np.asarray(R, np.float64)
+    a = np.radians((gain - 1.0) * yaw_deg(R))
+    c, s = np.cos(a), np.sin(a)
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]]) @ np.asarray(R, np.float64)
 
 
 def nearest_rotation(M: np.ndarray) -> np.ndarray:

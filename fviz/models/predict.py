@@ -63,17 +63,19 @@ def flip_matrix(width: int) -> np.ndarray:
     return np.array([[-1.0, 0.0, width - 1.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
 
 
-def predict_F(model, image_a: np.ndarray, image_b: np.ndarray, cameras=None) -> np.ndarray:
+def predict_F(model, image_a: np.ndarray, image_b: np.ndarray, cameras=None, yaw_gain: float = 1.0) -> np.ndarray:
     """F (3, 3) float64, FBN-normalized, in pixels of the given (full-resolution) images.
 
     image_a, image_b: uint8 (H, W) or (H, W, 3) RGB, any size (each is resized to the model input).
-    cameras: (K_a, K_b) to average the prediction with the mirrored pair's (:func:`predict_F_batch`).
+    cameras: (K_a, K_b) to average the prediction with the mirrored and the reversed pair's, whose mean yaw
+    is multiplied by ``yaw_gain`` (:func:`predict_F_batch`).
     Raises FvizError (NormalizationError) when an ETR model predicts F33 ~ 0.
     """
-    return predict_F_batch(model, [(image_a, image_b)], [cameras])[0]
+    return predict_F_batch(model, [(image_a, image_b)], [cameras], yaw_gain)[0]
 
 
-def predict_F_batch(model, pairs: list[tuple[np.ndarray, np.ndarray]], cameras: list | None = None) -> list[np.ndarray]:
+def predict_F_batch(model, pairs: list[tuple[np.ndarray, np.ndarray]], cameras: list | None = None,
+                    yaw_gain: float = 1.0) -> list[np.ndarray]:
     """:func:`predict_F` of several (image_a, image_b) pairs in one forward pass on the model's device
     (the resizing runs on the CPU). Each F: (3, 3) float64, FBN-normalized, in its images' pixels.
     The model is in eval mode (normalization layers use running statistics), so a pair's F does not
@@ -83,7 +85,8 @@ def predict_F_batch(model, pairs: list[tuple[np.ndarray, np.ndarray]], cameras: 
     left-right, which turns a left turn into a right one) and swapped ((b, a): the inverse motion), and its F
     is that of the mean of the three motions (:func:`fviz.geometry.mean_motion_f`, each F mapped back to a -> b
     first): what a network gets wrong the same way whichever way it sees the pair (a yaw bias, a learnt
-    asymmetry, a drift towards the motions it saw most) cancels.
+    asymmetry, a drift towards the motions it saw most) cancels. ``yaw_gain`` then multiplies that mean
+    motion's yaw (the model's calibration, :func:`fviz.train.heldout.fit_yaw_gain`).
     """
     import torch
 
@@ -118,6 +121,6 @@ def predict_F_batch(model, pairs: list[tuple[np.ndarray, np.ndarray]], cameras: 
         F = f_to_full(F_small[i], size_a, size_b, hw)
         if i in mirrored:
             K_a, K_b = (np.asarray(K, float) for K in cameras[i])
-            F = mean_motion_f([F, *(f_to_full(G[i], size_a, size_b, hw) for G in (mirrored, swapped))], K_a, K_b)
+            F = mean_motion_f([F, *(f_to_full(G[i], size_a, size_b, hw) for G in (mirrored, swapped))], K_a, K_b, yaw_gain)
         out.append(normalize(F, "fbn"))
     return out

@@ -37,8 +37,10 @@ def rotation_error_deg(F: np.ndarray, K_a: np.ndarray, K_b: np.ndarray, R_gt: np
 
 
 def yaw_deg(R: np.ndarray) -> float:
-    """Rotation about the camera's y axis (down), deg; positive turns the optical axis towards +x."""
-    return math.degrees(math.atan2(R[0, 2], R[2, 2]))
+    """Rotation about the camera's y axis (down), deg (:func:`fviz.geometry.yaw_deg`)."""
+    from fviz.geometry.pose import yaw_deg as yaw
+
+    return float(yaw(R))
 
 
 def yaw_of_f(F: np.ndarray, K_a: np.ndarray, K_b: np.ndarray) -> float:
@@ -126,6 +128,27 @@ def evaluate_heldout(pairs, estimators: list[tuple[str, Callable]], on_pair=None
         if on_pair is not None:
             on_pair(n + 1)
     return {name: summarize(r) for name, r in rows.items()}
+
+
+def fit_yaw_gain(model, pairs, gains=tuple(np.round(np.arange(1.0, 2.001, 0.05), 2))) -> tuple[float, dict[float, float]]:
+    """The gain on the yaw of ``model``'s mean motion (:func:`fviz.models.predict.predict_F_batch` with the
+    pair's cameras) that gives the lowest median rotation error over ``pairs`` (training pairs with poses,
+    never the held-out ones), and {gain: median rotation error, deg}.  A network that regresses F shrinks
+    its yaw towards the mean of what it saw (slope 0.42 on odometry 00); its yaw is scaled back, pitch and
+    roll are kept (:func:`fviz.geometry.scale_yaw`)."""
+    from fviz.geometry.pose import nearest_rotation, rotation_error_deg, scale_yaw, small_motion
+    from fviz.models.predict import predict_F_batch
+
+    motions, truths = [], []
+    for pair in pairs:
+        F = predict_F_batch(model, [(pair.image_a, pair.image_b)], [(pair.K_a, pair.K_b)])[0]
+        motions.append(small_motion(F, pair.K_a, pair.K_b)[0])
+        truths.append(nearest_rotation(pair.R))
+    if not motions:
+        raise ValueError("fit_yaw_gain: no pairs")
+    errors = {float(g): float(np.median([rotation_error_deg(scale_yaw(R, g), R_gt) for R, R_gt in zip(motions, truths)]))
+              for g in gains}
+    return min(errors, key=errors.get), errors
 
 
 def heldout_pairs(recipe, directions: bool = False):
