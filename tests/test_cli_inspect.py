@@ -253,6 +253,18 @@ def test_help_is_light():
     assert run_fviz("--help").returncode == 0
 
 
+def test_parsing_a_runs_options_imports_no_heavy_library(tmp_path):
+    """Everything the main process imports before an eval's first pair delays it (typer 0.29 coerces options
+    through pydantic: pinned below it). Parsed up to the bad root's one-line error, exit 2."""
+    import subprocess
+
+    code = ("import sys\nfrom fviz.cli import main\nsys.argv = ['fviz', 'eval', '--kitti-root', sys.argv[1], '--sequence', '00',"
+            " '--frames', '0:5', '-e', 'magsac', '--workers', '1']\ntry:\n    main()\nexcept SystemExit as e:\n"
+            "    print(e.code, sorted(m for m in ('pydantic', 'torch', 'rerun', 'cv2') if m in sys.modules))\n")
+    out = subprocess.run([sys.executable, "-c", code, str(tmp_path / "nope")], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "2 []", out.stdout + out.stderr
+
+
 def test_debug_keeps_a_user_estimators_traceback(tmp_path):
     """Without --debug a raising estimator is one line (its exception); with it, the traceback down to the
     user's own frame, in the JSON and on stderr, and the inspect table keeps to the first line."""
