@@ -15,6 +15,10 @@ and slope from E = K_b^T F K_a):
   the bundled gain of assets/MANIFEST.json, ``inference.yaw_gain``);
 - the straight-ahead constant.
 
+``--timing`` prints, first, the CPU ms a pair of one pass, of ``-e deep``'s three views (the reversed pair
+reusing the pair's image streams, :meth:`fviz.models.model.FNet.indexed`) and of the three views as three
+separate pairs, on 1 and 2 threads, measured in the same run.
+
 ``--fit-yaw-gain`` first fits that gain on the recipe's training pairs (``data.sequences`` and ``data.drives``,
 step 1 forward; :func:`fviz.train.heldout.fit_yaw_gain`) and adds its row.
 Held-out pairs: ``--recipe``'s data settings (default: recipes/kitti_motion.toml, both gray cameras; README's
@@ -62,6 +66,30 @@ def variants(model, gains=()):
     }
 
 
+def timing(model, pair, repeat: int = 15) -> None:
+    """Median ms a pair of one pass, the three views with shared streams, and the three views apart."""
+    import torch
+
+    from fviz.models.predict import predict_F_batch
+
+    a, b = np.asarray(pair.image_a), np.asarray(pair.image_b)
+    runs = {"one pass": lambda: predict_F_batch(model, [(a, b)]),
+            "three views (-e deep)": lambda: predict_F_batch(model, [(a, b)], [(pair.K_a, pair.K_b)]),
+            "three views apart": lambda: predict_F_batch(model, [(a, b), (a[:, ::-1].copy(), b[:, ::-1].copy()), (b, a)])}
+    threads = torch.get_num_threads()
+    for n in (1, 2):
+        torch.set_num_threads(n)
+        times = {name: [] for name in runs}
+        for _ in range(repeat):  # interleaved: the machine's speed drifts alike for each
+            for name, run in runs.items():
+                t0 = time.perf_counter()
+                run()
+                times[name].append(1e3 * (time.perf_counter() - t0))
+        one = np.median(times["one pass"])
+        print(f"{n} thread(s): " + ", ".join(f"{name} {np.median(t):.1f} ms ({np.median(t) / one:.2f}x)" for name, t in times.items()))
+    torch.set_num_threads(threads)
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--recipe", default=str(PROJECT / "recipes" / "kitti_motion.toml"))
@@ -72,6 +100,7 @@ def main() -> int:
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--yaw-gain", type=float, action="append", default=[], metavar="G", help="add a row with the yaw times G")
     ap.add_argument("--fit-yaw-gain", action="store_true", help="fit the gain on the recipe's training pairs first")
+    ap.add_argument("--timing", action="store_true", help="CPU ms a pair of one pass and of the three views, first")
     args = ap.parse_args()
 
     import torch
@@ -90,6 +119,8 @@ def main() -> int:
                                          "data.sequences=[]", "data.drives=[]",
                                          *([f"data.cameras={args.cameras}"] if args.cameras else [])])
 
+    if args.timing:
+        timing(model, next(iter(heldout_pairs(recipe_of(args.test[:1])))))
     gains = list(args.yaw_gain)
     if args.fit_yaw_gain:
         training = load_recipe(args.recipe).data

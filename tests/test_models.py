@@ -85,6 +85,20 @@ def test_every_variant_shape_rank_and_normalization(name):
         assert torch.allclose(F64[:, 2, 2], torch.ones(3, dtype=torch.float64), atol=1e-6)
 
 
+@pytest.mark.parametrize("arch", ["siamese", "single"])
+def test_indexed_pairs_equal_the_pairs_run_apart(arch):
+    """FNet.indexed runs each image's stream once for every pair it is in (a pair and its reverse share them)."""
+    torch.manual_seed(0)
+    model = FNet.from_variant(f"{arch}-rec-pos-fbn", **SMALL).eval()
+    a, b = _images(2, seed=1)
+    images, index = torch.cat([a, b]), torch.tensor([[0, 2], [1, 3], [2, 0], [3, 1], [0, 3]])
+    with torch.no_grad():
+        apart = model(images[index[:, 0]], images[index[:, 1]])
+        got = model.indexed(images, index)
+    torch.testing.assert_close(got, apart, rtol=0, atol=1e-6)
+    assert (got[0] - got[2]).abs().max() > 1e-4  # (a, b) and (b, a) differ: the index is followed
+
+
 def test_every_variant_fits_20_mb_at_the_default_size():
     for name in VARIANTS:
         if not name.endswith("-fbn"):  # the norm has no weights: 12 distinct sizes
@@ -239,6 +253,9 @@ class _FixedF(torch.nn.Module):
     def forward(self, a, b, strict_norm=None):
         assert a.shape[-2:] == self.config.input_hw and a.max() <= 1.0
         return self.F[None].expand(a.shape[0], 3, 3) + self.w
+
+    def indexed(self, images, index, strict_norm=None):  # FNet's: the pairs (images[i], images[j])
+        return self(images[index[:, 0]], images[index[:, 1]], strict_norm)
 
 
 def test_predict_F_maps_back_to_full_resolution_pixels():

@@ -68,6 +68,10 @@ class SingleBackbone(nn.Module):
     def forward(self, img_a: torch.Tensor, img_b: torch.Tensor) -> torch.Tensor:
         return self.block(torch.cat([img_a, img_b], dim=1))
 
+    def indexed(self, images: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
+        """:meth:`forward` of the pairs (images[index[:, 0]], images[index[:, 1]]).  (N, 1, H, W), (B, 2) -> (B, width, H, W)."""
+        return self(images[index[:, 0]], images[index[:, 1]])
+
 
 class SiameseBackbone(nn.Module):
     """Shared-weight UCN-like streams, features concatenated, then the single-stream block.
@@ -89,6 +93,13 @@ class SiameseBackbone(nn.Module):
         feats = self.stream(torch.cat([img_a, img_b], dim=0))
         f_a, f_b = feats.chunk(2, dim=0)
         return self.block(torch.cat([f_a, f_b], dim=1))
+
+    def indexed(self, images: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
+        """:meth:`forward` of the pairs (images[index[:, 0]], images[index[:, 1]]), each image's stream run once
+        (an image in several pairs, e.g. a pair and its reverse).  (N, 1, H, W), (B, 2) -> (B, width, H/4, W/4).
+        In eval mode only: in training BatchNorm's statistics would be taken over the N images, not the 2B."""
+        feats = self.stream(images)
+        return self.block(torch.cat([feats[index[:, 0]], feats[index[:, 1]]], dim=1))
 
 
 def make_backbone(arch: str, width: int = 128, ucn_channels: tuple[int, int, int] = (32, 64, 64)) -> nn.Module:

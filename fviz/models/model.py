@@ -225,7 +225,15 @@ class FNet(nn.Module):
         return self.head(self.features(img_a, img_b))
 
     def forward(self, img_a: torch.Tensor, img_b: torch.Tensor, strict_norm: bool | None = None) -> torch.Tensor:
-        F = self.unnormalized(img_a, img_b)
+        return self._normalized(self.unnormalized(img_a, img_b), strict_norm)
+
+    def indexed(self, images: torch.Tensor, index: torch.Tensor, strict_norm: bool | None = None) -> torch.Tensor:
+        """:meth:`forward` of the pairs (images[index[:, 0]], images[index[:, 1]]), what the backbone computes
+        per image done once per image (eval mode).  (N, 1, H, W), (B, 2) long -> F (B, 3, 3) float32."""
+        self._check(images, "a/b")
+        return self._normalized(self.head(self.pool(self.backbone.indexed(images, index)).flatten(1)), strict_norm)
+
+    def _normalized(self, F: torch.Tensor, strict_norm: bool | None) -> torch.Tensor:
         with torch.autocast(device_type=F.device.type, enabled=False):
             return self.norm(F.float(), strict=strict_norm)
 

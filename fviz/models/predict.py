@@ -85,7 +85,8 @@ def predict_F_batch(model, pairs: list[tuple[np.ndarray, np.ndarray]], cameras: 
     left-right, which turns a left turn into a right one) and swapped ((b, a): the inverse motion), and its F
     is that of the mean of the three motions (:func:`fviz.geometry.mean_motion_f`, each F mapped back to a -> b
     first): what a network gets wrong the same way whichever way it sees the pair (a yaw bias, a learnt
-    asymmetry, a drift towards the motions it saw most) cancels. ``yaw_gain`` then multiplies that mean
+    asymmetry, a drift towards the motions it saw most) cancels; the reversed pair reuses the pair's image
+    features (:meth:`fviz.models.model.FNet.indexed`). ``yaw_gain`` then multiplies that mean
     motion's yaw (the model's calibration, :func:`fviz.train.heldout.fit_yaw_gain`).
     """
     import torch
@@ -101,18 +102,23 @@ def predict_F_batch(model, pairs: list[tuple[np.ndarray, np.ndarray]], cameras: 
         device = torch.device("cpu")
     cameras = list(cameras or [None] * len(pairs))
     seen = [i for i, c in enumerate(cameras) if c is not None]  # also seen mirrored and swapped
+    n, k = len(pairs), len(seen)
     a = np.stack([to_model_input(ia, hw) for ia, _ in pairs])
     b = np.stack([to_model_input(ib, hw) for _, ib in pairs])
-    a, b = np.concatenate([a, a[seen, :, ::-1], b[seen]]), np.concatenate([b, b[seen, :, ::-1], a[seen]])  # resizing commutes with the mirror
+    images = np.concatenate([a, b, a[seen, :, ::-1], b[seen, :, ::-1]])  # resizing commutes with the mirror
+    rows, views, mirrors = np.arange(n), np.asarray(seen, int), 2 * n + np.arange(k)
+    index = np.concatenate([np.stack([rows, n + rows], 1),  # (a, b)
+                            np.stack([mirrors, mirrors + k], 1),  # (a, b) mirrored
+                            np.stack([n + views, views], 1)])  # (b, a): the streams of (a, b) again
     was_training = model.training
     model.eval()
     try:
         with torch.inference_mode():
-            F_small = model(torch.from_numpy(a)[:, None].to(device), torch.from_numpy(b)[:, None].to(device),
-                            strict_norm=True).double().cpu().numpy()
+            F_small = model.indexed(torch.from_numpy(np.ascontiguousarray(images))[:, None].to(device),
+                                    torch.from_numpy(index).to(device), strict_norm=True).double().cpu().numpy()
     finally:
         model.train(was_training)
-    H, n, k = flip_matrix(hw[1]), len(pairs), len(seen)
+    H = flip_matrix(hw[1])
     mirrored = {i: H.T @ F @ H for i, F in zip(seen, F_small[n:n + k])}  # x_b^T (H^T F' H) x_a = (H x_b)^T F' (H x_a)
     swapped = {i: F.T for i, F in zip(seen, F_small[n + k:])}  # x_a^T F' x_b = 0: F'^T maps a to b
     out = []
