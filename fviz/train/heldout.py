@@ -25,6 +25,8 @@ from typing import Any, Callable
 
 import numpy as np
 
+from fviz.geometry.pose import yaw_deg
+
 STRAIGHT_YAW_DEG = 0.2
 
 
@@ -36,18 +38,11 @@ def rotation_error_deg(F: np.ndarray, K_a: np.ndarray, K_b: np.ndarray, R_gt: np
     return min(float(rotation_angle_deg(R @ R_gt.T)) for R in essential_decomposition(F, K_a, K_b)[:2])
 
 
-def yaw_deg(R: np.ndarray) -> float:
-    """Rotation about the camera's y axis (down), deg (:func:`fviz.geometry.yaw_deg`)."""
-    from fviz.geometry.pose import yaw_deg as yaw
-
-    return float(yaw(R))
-
-
 def yaw_of_f(F: np.ndarray, K_a: np.ndarray, K_b: np.ndarray) -> float:
     """Yaw of the rotation of E closer to identity (driving: frame-to-frame rotations are small)."""
     from fviz.geometry.pose import small_motion
 
-    return yaw_deg(small_motion(F, K_a, K_b)[0])
+    return float(yaw_deg(small_motion(F, K_a, K_b)[0]))
 
 
 def straight_ahead_f(pair, x_a=None, x_b=None) -> np.ndarray:
@@ -78,7 +73,7 @@ def pair_figures(pair, estimators: list[tuple[str, Callable]], cache=None) -> di
             m["yaw_deg"] = yaw_of_f(est.F, pair.K_a, pair.K_b)
         else:
             m.update(rot_err_deg=math.nan, yaw_deg=math.nan, sed_median=math.nan, epipole_err_deg=math.nan)
-        out[est.name] = PairFigures(pair.id.name, pair.id.kind, yaw_deg(pair.R), m)
+        out[est.name] = PairFigures(pair.id.name, pair.id.kind, float(yaw_deg(pair.R)), m)
     return out
 
 
