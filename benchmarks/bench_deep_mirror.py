@@ -37,6 +37,13 @@ import numpy as np
 from common import KITTI_ROOT, PROJECT
 
 
+def views_apart(model, a: np.ndarray, b: np.ndarray) -> list[np.ndarray]:
+    """The F's of (a, b), of the pair mirrored and of (b, a), predicted as three separate pairs (no shared streams)."""
+    from fviz.models.predict import predict_F_batch
+
+    return predict_F_batch(model, [(a, b), (a[:, ::-1].copy(), b[:, ::-1].copy()), (b, a)])
+
+
 def variants(model, gains=()):
     """{row: estimator (pair, x_a, x_b) -> F} of the mirrored uses of ``model``, the yaw scaled by each of
     ``gains`` in the last rows."""
@@ -46,7 +53,7 @@ def variants(model, gains=()):
     def passes(pair, mirrored: bool = True, swapped: bool = False):
         """One pass's F, then the mirrored pair's and the swapped pair's, each mapped back to a -> b."""
         a, b = np.asarray(pair.image_a), np.asarray(pair.image_b)
-        F = predict_F_batch(model, [(a, b), (a[:, ::-1].copy(), b[:, ::-1].copy()), (b, a)])
+        F = views_apart(model, a, b)
         F[1] = flip_matrix(b.shape[1]).T @ F[1] @ flip_matrix(a.shape[1])
         F[2] = F[2].T
         return [F[0]] + [F[1]] * mirrored + [F[2]] * swapped
@@ -75,7 +82,7 @@ def timing(model, pair, repeat: int = 15) -> None:
     a, b = np.asarray(pair.image_a), np.asarray(pair.image_b)
     runs = {"one pass": lambda: predict_F_batch(model, [(a, b)]),
             "three views (-e deep)": lambda: predict_F_batch(model, [(a, b)], [(pair.K_a, pair.K_b)]),
-            "three views apart": lambda: predict_F_batch(model, [(a, b), (a[:, ::-1].copy(), b[:, ::-1].copy()), (b, a)])}
+            "three views apart": lambda: views_apart(model, a, b)}
     threads = torch.get_num_threads()
     for n in (1, 2):
         torch.set_num_threads(n)

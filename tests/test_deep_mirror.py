@@ -111,14 +111,14 @@ def test_three_views_bring_deep_closer_to_the_ground_truth_on_held_out_pairs(seq
 
     model = load_model(BUNDLED, "cpu")[0]
     single = lambda p, xa, xb: predict_F(model, p.image_a, p.image_b)  # noqa: E731
-    sed, rot = {"deep": [], "single": []}, {"deep": [], "single": []}
+    sed, rot_err = {"deep": [], "single": []}, {"deep": [], "single": []}
     for frame, cam in [(f, c) for f in range(9) for c in (2, 3)]:
         r = evaluate_pair(seq04.pair(frame, "temporal", cams=(cam, cam)), [("deep", make()), ("single", single)])
         for name in sed:
             sed[name].append(r.get(name).metrics["sed_median"])
-            rot[name].append(r.get(name).metrics["rot_err_deg"])
+            rot_err[name].append(r.get(name).metrics["rot_err_deg"])
     assert np.median(sed["deep"]) < 0.8 * np.median(sed["single"]), sed
-    assert np.median(rot["deep"]) < np.median(rot["single"]), rot
+    assert np.median(rot_err["deep"]) < np.median(rot_err["single"]), rot_err
 
 
 def test_the_yaw_gain_lowers_the_rotation_error_on_a_curve(kitti_root):

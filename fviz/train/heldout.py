@@ -126,17 +126,17 @@ def evaluate_heldout(pairs, estimators: list[tuple[str, Callable]], on_pair=None
 
 
 def fit_yaw_gain(model, pairs, gains=tuple(np.round(np.arange(1.0, 2.001, 0.05), 2))) -> tuple[float, dict[float, float]]:
-    """The gain on the yaw of ``model``'s mean motion (:func:`fviz.models.predict.predict_F_batch` with the
+    """The gain on the yaw of ``model``'s mean motion (:func:`fviz.models.predict.predict_F` with the
     pair's cameras) that gives the lowest median rotation error over ``pairs`` (training pairs with poses,
     never the held-out ones), and {gain: median rotation error, deg}.  A network that regresses F shrinks
     its yaw towards the mean of what it saw (slope 0.42 on odometry 00); its yaw is scaled back, pitch and
     roll are kept (:func:`fviz.geometry.scale_yaw`)."""
     from fviz.geometry.pose import nearest_rotation, rotation_error_deg, scale_yaw, small_motion
-    from fviz.models.predict import predict_F_batch
+    from fviz.models.predict import predict_F
 
     motions, truths = [], []
     for pair in pairs:
-        F = predict_F_batch(model, [(pair.image_a, pair.image_b)], [(pair.K_a, pair.K_b)])[0]
+        F = predict_F(model, pair.image_a, pair.image_b, (pair.K_a, pair.K_b))
         motions.append(small_motion(F, pair.K_a, pair.K_b)[0])
         truths.append(nearest_rotation(pair.R))
     if not motions:
