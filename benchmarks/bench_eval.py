@@ -12,6 +12,8 @@
    the start of its first pair, less the interpreter's own start) and, once, the CPU per pair outside SIFT
    (``PairEvaluator`` over the run's frame schedule in one single-threaded process: every task's CPU less
    its feature detection). fviz runs with cached bytecode (``PYTHONDONTWRITEBYTECODE`` unset), as installed.
+   Last, the floor: the CPU a pair of what no correct eval skips besides SIFT (decoding, exact matching,
+   MAGSAC++; single thread, each at its fastest here), and the eval / limit it alone would give.
 2. Memory: peak RSS (max over the run's processes, ``getrusage(RUSAGE_CHILDREN)`` of a fresh
    subprocess per size) of ``fviz eval`` on a small and a 10x larger selection of synthetic pairs. Target:
    flat, ratio <= 1.05.
@@ -104,6 +106,41 @@ def sift_cpu(root: Path, max_keypoints: int = 2000) -> float:
     finally:
         cv2.setNumThreads(threads)
     return total
+
+
+def floor_per_pair(root: Path, max_keypoints: int = 2000) -> dict[str, float]:
+    """Single-thread CPU ms a pair of what any eval of these pairs must do besides SIFT, each at its fastest
+    here: decode the frames (PNG, once each), match exactly (fviz's matcher, equal to OpenCV's brute force
+    + ratio test; of it the distance GEMM alone) and run MAGSAC++ (as the plain loop calls it)."""
+    import cv2
+    import numpy as np
+
+    from fviz.estimators.features import FeatureConfig, detect, match
+
+    paths = frame_paths(root)
+    threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    try:
+        t0 = time.thread_time()
+        images = [read_gray(p) for p in paths]
+        decode = time.thread_time() - t0
+        cfg = FeatureConfig(max_keypoints=max_keypoints)
+        feats = [detect(img, cfg) for img in images]
+        matching = gemm = magsac = 0.0
+        for fa, fb in zip(feats, feats[1:]):
+            t0 = time.thread_time()
+            m = match(fa, fb, cfg)
+            t1 = time.thread_time()
+            np.dot(fa.descriptors, fb.descriptors.T)
+            t2 = time.thread_time()
+            cv2.findFundamentalMat(m.x_a, m.x_b, cv2.USAC_MAGSAC, 1.0, 0.999, 10000)
+            t3 = time.thread_time()
+            matching, gemm, magsac = matching + t1 - t0, gemm + t2 - t1, magsac + t3 - t2
+    finally:
+        cv2.setNumThreads(threads)
+    pairs = len(paths) - 1
+    ms = {"decode": decode, "matching": matching, "gemm": gemm, "magsac": magsac}
+    return {k: 1e3 * v / pairs for k, v in ms.items()}
 
 
 def interpreter_seconds(repeat: int = 3) -> float:
@@ -228,6 +265,13 @@ def speed(root: Path, workers: int, repeat: int) -> None:
     pp = per_pair_outside_sift(root)
     print(f"  per pair outside SIFT:    {1e3 * (pp['cpu'] - pp['sift']) / pp['pairs']:7.1f} ms CPU   (one process over the schedule: "
           f"{pp['cpu']:.2f} s CPU, of it {pp['sift']:.2f} s detection, {pp['detections']} detections; target <= 20)")
+    fl = floor_per_pair(root)
+    floor_ms = fl["decode"] + fl["matching"] + fl["magsac"]
+    print(f"  floor per pair:           {floor_ms:7.1f} ms CPU   (decode {fl['decode']:.1f} + exact matching {fl['matching']:.1f}, "
+          f"its GEMM alone {fl['gemm']:.1f}, + MAGSAC++ {fl['magsac']:.1f}: what no correct eval skips, besides SIFT)")
+    best = (m["limit"] * workers + 1e-3 * floor_ms * (FRAMES - 1)) / workers / m["limit"]
+    print(f"  floor / limit:            {best:7.2f}   (SIFT and the floor on {workers} busy cores, with no start-up, "
+          "metrics, triage evidence or reports)")
 
 
 def memory(root: Path, workers: int, small: int, large: int) -> None:
