@@ -128,7 +128,10 @@ def test_url_is_printed_once_the_viewer_serves(recording):
         assert answers(port)
     finally:
         proc.send_signal(signal.SIGINT)
-        assert proc.wait(timeout=BUDGET_S) == 0
+        try:
+            assert proc.wait(timeout=BUDGET_S) == 0
+        finally:
+            proc.kill()  # a no-op once it exited; else its viewer must not outlive the test (it dies with fviz)
     assert not answers(web_port) and not answers(port)
 
 
