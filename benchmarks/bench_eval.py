@@ -269,8 +269,8 @@ def speed(root: Path, workers: int, repeat: int) -> None:
     floor_ms = fl["decode"] + fl["matching"] + fl["magsac"]
     print(f"  floor per pair:           {floor_ms:7.1f} ms CPU   (decode {fl['decode']:.1f} + exact matching {fl['matching']:.1f}, "
           f"its GEMM alone {fl['gemm']:.1f}, + MAGSAC++ {fl['magsac']:.1f}: what no correct eval skips, besides SIFT)")
-    best = (m["limit"] * workers + 1e-3 * floor_ms * (FRAMES - 1)) / workers / m["limit"]
-    print(f"  floor / limit:            {best:7.2f}   (SIFT and the floor on {workers} busy cores, with no start-up, "
+    floor_ratio = (m["limit"] * workers + 1e-3 * floor_ms * (FRAMES - 1)) / workers / m["limit"]
+    print(f"  floor / limit:            {floor_ratio:7.2f}   (SIFT and the floor on {workers} busy cores, with no start-up, "
           "metrics, triage evidence or reports)")
 
 
