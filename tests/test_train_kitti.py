@@ -159,15 +159,15 @@ def test_pose_figures_from_f_against_closed_forms(kitti_root):
     import math
 
     from fviz.data.kitti import open_dataset
-    from fviz.train.heldout import rotation_error_deg, straight_ahead_f, yaw_deg, yaw_of_f
+    from fviz.train.heldout import rotation_error_of_f, straight_ahead_f, yaw_deg, yaw_of_f
 
     ds = open_dataset(kitti_root, sequence="00")
     for frame in (0, 20, 40):
         pair = ds.pair(frame, kind="temporal", step=1)
-        assert rotation_error_deg(pair.F_gt, pair.K_a, pair.K_b, pair.R) < 1e-5
+        assert rotation_error_of_f(pair.F_gt, pair.K_a, pair.K_b, pair.R) < 1e-5
         assert abs(yaw_of_f(pair.F_gt, pair.K_a, pair.K_b) - yaw_deg(pair.R)) < 1e-5
         angle = math.degrees(math.acos(min((np.trace(pair.R) - 1) / 2, 1.0)))
-        assert abs(rotation_error_deg(straight_ahead_f(pair), pair.K_a, pair.K_b, pair.R) - angle) < 0.02  # acos: KITTI rounding
+        assert abs(rotation_error_of_f(straight_ahead_f(pair), pair.K_a, pair.K_b, pair.R) - angle) < 0.02  # acos: KITTI rounding
     c, s = math.cos(math.radians(2.0)), math.sin(math.radians(2.0))
     assert abs(yaw_deg(np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])) - 2.0) < 1e-12  # optical axis towards +x
 

@@ -30,7 +30,7 @@ from fviz.geometry.pose import yaw_deg
 STRAIGHT_YAW_DEG = 0.2
 
 
-def rotation_error_deg(F: np.ndarray, K_a: np.ndarray, K_b: np.ndarray, R_gt: np.ndarray) -> float:
+def rotation_error_of_f(F: np.ndarray, K_a: np.ndarray, K_b: np.ndarray, R_gt: np.ndarray) -> float:
     """Angle (deg) between R_gt and the closer of E's two rotations (E = K_b^T F K_a)."""
     from fviz.geometry.pose import essential_decomposition, nearest_rotation, rotation_angle_deg
 
@@ -69,7 +69,7 @@ def pair_figures(pair, estimators: list[tuple[str, Callable]], cache=None) -> di
     for est in result.estimators:
         m = dict(est.metrics)
         if est.F is not None:
-            m["rot_err_deg"] = rotation_error_deg(est.F, pair.K_a, pair.K_b, pair.R)
+            m["rot_err_deg"] = rotation_error_of_f(est.F, pair.K_a, pair.K_b, pair.R)
             m["yaw_deg"] = yaw_of_f(est.F, pair.K_a, pair.K_b)
         else:
             m.update(rot_err_deg=math.nan, yaw_deg=math.nan, sed_median=math.nan, epipole_err_deg=math.nan)
