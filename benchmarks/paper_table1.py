@@ -8,12 +8,17 @@ never seen; ``paper`` draws random frames of all four drives, 80 / 10 / 10 % (th
 so test frames neighbour training frames.  Rows: the Siamese Base, REC, REC + POS, EPI, EPI + POS under FBN
 and ABS, the Single-stream REC + POS, 8-point, LMedS, RANSAC, MAGSAC++, the two constants that read no
 image (``ahead``: straight ahead; the mean ground-truth F of the training pairs, a fair prior since it saw
-no test label) and the ground truth.  ETR columns are undefined on rectified stereo (F33 = 0).
+no test label) and the ground truth.
+
+Each row shows the paper's figures (``fviz.table.PAPER_TABLE1``), fviz's in the paper's frame (the unrectified
+cameras of ``calib_cam_to_cam.txt``, every F and match mapped there: ETR is defined) and in the rectified frame
+of the images (ETR undefined: F33 = 0), and each one's ratio to the ground-truth row of its column.
 
 Every rectified stereo pair of one rig has the same F: the training mean *is* the test pairs' F, so a
 network that learnt that constant scores like the ground truth.  The second table says, per estimator,
-how far its F moves from pair to pair (``spread``: median f_dist of its F to its own mean F; 0 = constant)
-beside the epipole error and median SED, so a reader sees whether a network beats the constant or is it.
+how far its F moves from pair to pair (the epipole's and the rotation's spread, as triage measures them;
+0 = constant) beside the epipole error and median SED, so a reader sees whether a network beats the constant
+or is it.
 
 Outputs: ``OUT/{split}/table1.md`` (both tables) and ``OUT/{split}/rows.csv`` (every pair and estimator),
 the models in ``OUT/{split}/{variant}/``.  Training logs: ``OUT/{split}/{variant}.log``.
@@ -64,18 +69,21 @@ def train_missing(split: str, variants: list[str], out: Path, steps: int, overri
 
 def test_pairs(split: str, recipe, test_drives: list[str] | None):
     """The test stereo pairs of a split (forward direction): ``test_drives`` (honest) or the test part of the
-    training drives (paper)."""
+    training drives (paper), each with the homographies (H_a, H_b) into the drive's unrectified cameras."""
     from fviz.train.data import _open_named, frames_of, paper_split_frames, resolve_root
 
     d = recipe.data
     roots = [str(resolve_root(r)) for r in [d.root, *d.roots] if r]
+    from fviz.data.kitti import raw_cameras
+
     for name in test_drives or d.drives:
         _, ds = _open_named(roots, name)
+        cams = raw_cameras(ds.calib_path)
         frames = frames_of(ds, 0) & frames_of(ds, 1)
         if not test_drives:
             frames &= paper_split_frames(name, set().union(*(frames_of(ds, c) for c in ds.projections)), "test")
         for f in sorted(frames):
-            yield ds.pair(f, "stereo", cams=(0, 1))
+            yield ds.pair(f, "stereo", cams=(0, 1)), (cams[0].H, cams[1].H)
 
 
 def training_mean_f(split: str, recipe) -> np.ndarray:
@@ -94,15 +102,75 @@ def training_mean_f(split: str, recipe) -> np.ndarray:
     return mean_fundamental(Fs)
 
 
-def spread(Fs: list[np.ndarray]) -> float:
-    """Median f_dist of each F to the mean of all of them: 0 for an estimator that returns a constant."""
-    from fviz.estimators.baselines import mean_fundamental
-    from fviz.geometry import f_distance
+def spreads(results: list) -> dict[str, tuple[float, float]]:
+    """Per F, how far it moves from pair to pair, as triage measures it (:mod:`fviz.triage`): the spread of its
+    epipole's viewing ray and of its recovered rotation (deg; median angle to the median), 0 for a constant."""
+    from fviz.geometry import epipoles
+    from fviz.triage import direction_spread_deg, rotation_spread_deg
 
-    if len(Fs) < 2:
-        return math.nan
-    mean = mean_fundamental(Fs)
-    return float(np.median([f_distance(F, mean) for F in Fs]))
+    rays, Rs = {}, {}
+    for result, pair in results:
+        for r in result.estimators:
+            if r.F is not None:
+                ray = np.linalg.solve(pair.K_a, epipoles(r.F)[0])
+                rays.setdefault(r.name, []).append(ray / np.linalg.norm(ray))
+            if r.R is not None:
+                Rs.setdefault(r.name, []).append(r.R)
+    spread = lambda f, xs: f(np.array(xs)) if len(xs) > 1 else math.nan  # noqa: E731
+    return {n: (spread(direction_spread_deg, rays.get(n, [])), spread(rotation_spread_deg, Rs.get(n, []))) for n in rays}
+
+
+FRAMES_NOTE = (
+    "Frames. *paper frame*: the unrectified cameras of the drive's `calib_cam_to_cam.txt` (K_0x, R_0x, T_0x; "
+    "1392 x 512, distortion left out), where the paper's ground-truth F lives (F33 carries most of ||F||, so ETR "
+    "is defined and the three norms nearly agree). Every F (estimates, constants, networks, ground truth) and every "
+    "match is mapped there from the rectified images by H = K R_rect^T P_rect[:, :3]^-1 per camera, and the "
+    "evaluation matches are chosen again there (SED < 2 px under the mapped ground truth). *rectified*: the images "
+    "as fviz reads them (1242 x 375); F33 = 0, so ETR is undefined. **÷ GT**: a row's value over the ground-truth "
+    "row of its column, the one figure that survives a change of frame. Means over pairs of the per-pair means.")
+NO_COUNTERPART = ("—: no counterpart. MAGSAC++ postdates the paper; the constants (straight ahead, the training "
+                  "drives' mean F) are fviz's controls, not the paper's; a paper network row fviz did not train "
+                  "here shows only the paper's figures.")
+
+
+def _fmt(v: float | None) -> str:
+    return "" if v is None or not math.isfinite(v) else f"{v:.3g}"
+
+
+def _cell(v) -> str:
+    """'ABS / SQR', empty when neither is known."""
+    return "" if not v or all(x is None for x in v) else " / ".join(map(_fmt, v))
+
+
+def _pair_cells(cells: list[str] | None, norm: str) -> tuple[float | None, float | None]:
+    """(EPI-ABS, EPI-SQR) under ``norm`` of a table_from_rows row, None where empty."""
+    if cells is None:
+        return None, None
+    i = 1 + 2 * ("etr", "fbn", "abs").index(norm)
+    return tuple(float(c) if c else None for c in cells[i:i + 2])  # type: ignore[return-value]
+
+
+def table1_markdown(rectified: dict[str, list[str]], paper_frame: dict[str, list[str]]) -> list[str]:
+    """Table 1 in the paper's layout (a block per norm), each row with the paper's figures, fviz's in the paper's
+    frame and in the rectified frame, and the ratios to the ground-truth row (paper, fviz paper frame)."""
+    from fviz.table import CLASSICAL_LABELS, HEAD_LABELS, paper_value
+
+    gt = CLASSICAL_LABELS["gt"]
+    archs = {label.partition(" ")[0] for label in rectified if label.startswith(("Siamese ", "Single-stream "))} or {"Siamese"}
+    paper_only = [f"{a} {h}" for a in sorted(archs) for h in HEAD_LABELS.values() if f"{a} {h}" not in rectified]
+    labels = [lbl for lbl in rectified if lbl != gt] + paper_only + [gt]
+    md = ["| Norm | Method | paper ABS / SQR | fviz, paper frame ABS / SQR | fviz, rectified ABS / SQR | "
+          "÷ GT, paper | ÷ GT, fviz paper frame |", "|---|---|---|---|---|---|---|"]
+    for norm in ("etr", "fbn", "abs"):
+        p_gt, f_gt = paper_value(norm, gt), _pair_cells(paper_frame.get(gt), norm)
+        for label in labels:
+            p, f, r = paper_value(norm, label), _pair_cells(paper_frame.get(label), norm), _pair_cells(rectified.get(label), norm)
+            ratio = lambda v, g: _cell([a / b if a is not None and b else None for a, b in zip(v, g)]) if v else "—"  # noqa: E731
+            net = label.startswith(("Siamese ", "Single-stream "))  # an empty network cell: no model of that norm
+            rect = "undefined" if norm == "etr" and not net and r == (None, None) else _cell(r)
+            md.append(f"| {norm.upper()} | {label} | {_cell(p) if p else '—'} | {_cell(f)} | {rect if label in rectified else ''} | "
+                      f"{ratio(p, p_gt)} | {ratio(f if label in paper_frame else None, f_gt)} |")
+    return md
 
 
 def evaluate(split: str, models: dict[str, Path], out: Path, overrides: list[str], test_drives: list[str] | None) -> Path:
@@ -110,7 +178,7 @@ def evaluate(split: str, models: dict[str, Path], out: Path, overrides: list[str
     from fviz.estimators.deep import deep_estimator
     from fviz.estimators.features import FeatureCache, FeatureConfig
     from fviz.estimators.registry import get_estimator
-    from fviz.evaluate import evaluate_pair
+    from fviz.evaluate import evaluate_pair, rows_in_frame
     from fviz.models.model import parse_variant
     from fviz.table import table_from_rows
     from fviz.train.recipe import load_recipe
@@ -120,30 +188,31 @@ def evaluate(split: str, models: dict[str, Path], out: Path, overrides: list[str
     estimators += [(name, get_estimator(name)) for name in CLASSICAL]
     estimators.append(("mean-training drives", constant_estimator(training_mean_f(split, recipe))))
     cache = FeatureCache(FeatureConfig(), threads=1)
-    rows, Fs, t0 = [], {}, time.perf_counter()
-    for pair in test_pairs(split, recipe, test_drives):
+    rows, frame_rows, results, t0 = [], [], [], time.perf_counter()
+    for pair, (H_a, H_b) in test_pairs(split, recipe, test_drives):
         result = evaluate_pair(pair, estimators, cache=cache)
         rows += result.rows()
-        for est in result.estimators:
-            if est.F is not None:
-                Fs.setdefault(est.name, []).append(est.F)
-    print(f"  {split}: {len({r['name'] for r in rows})} test pairs, {len(estimators)} estimators, "
-          f"{time.perf_counter() - t0:.0f} s", flush=True)
-    header, table = table_from_rows(rows, {v: parse_variant(v) for v in models})
-    table = [[c if (c or not h.startswith("ETR")) else "undefined" for h, c in zip(header, r)] for r in table]
-    md = [f"## Table 1, {split} split ({RECIPES[split].relative_to(PROJECT)}), {len({r['name'] for r in rows})} test pairs", "",
-          "| " + " | ".join(header) + " |", "|---" * len(header) + "|", *("| " + " | ".join(r) + " |" for r in table), "",
-          "ETR: undefined, every rectified stereo F has F33 = 0.  Means over pairs of the per-pair means over the "
-          "evaluation matches (SIFT matches within 2 px of the ground truth), at full resolution 1242 x 375.", "",
-          "| Estimator | spread (0 = constant) | median epipole error (deg) | median SED (px) | failures |",
-          "|---|---|---|---|---|"]
+        frame_rows += rows_in_frame(result, H_a, H_b)
+        results.append((result, pair))
+    n_pairs = len({r['name'] for r in rows})
+    print(f"  {split}: {n_pairs} test pairs, {len(estimators)} estimators, {time.perf_counter() - t0:.0f} s", flush=True)
+    variants = {v: parse_variant(v) for v in models}
+    as_dict = lambda t: {r[0]: r for r in t[1]}  # noqa: E731
+    md = [f"## Table 1, {split} split ({RECIPES[split].relative_to(PROJECT)}), {n_pairs} test pairs", "",
+          *table1_markdown(as_dict(table_from_rows(rows, variants)), as_dict(table_from_rows(frame_rows, variants))), "",
+          FRAMES_NOTE, "", NO_COUNTERPART, "",
+          "| Estimator | epipole spread deg (0 = constant) | rotation spread deg | median epipole error (deg) | "
+          "median SED (px) | failures |", "|---|---|---|---|---|---|"]
+    spread = spreads(results)
     for name in [e for e, _ in estimators] + ["gt"]:
         mine = [r for r in rows if r["estimator"] == name]
         ok = [r for r in mine if not r["error"]]
         med = lambda k: np.nanmedian([float(r.get(k, math.nan)) for r in ok]) if ok else math.nan  # noqa: E731
-        md.append(f"| {name} | {spread(Fs.get(name, [])):.3g} | {med('epipole_err_deg'):.3g} | {med('sed_median'):.3g} | "
+        ep, rot = spread.get(name, (math.nan, math.nan))
+        md.append(f"| {name} | {ep:.3g} | {rot:.3g} | {med('epipole_err_deg'):.3g} | {med('sed_median'):.3g} | "
                   f"{len(mine) - len(ok)} |")
     path = out / split / "table1.md"
+    path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text("\n".join(md) + "\n")
     with open(out / split / "rows.csv", "w", newline="") as fh:
         keys = sorted({k for r in rows for k in r})
@@ -169,7 +238,7 @@ def main() -> int:
     out = Path(args.out)
     for split in ("honest", "paper") if args.split == "both" else (args.split,):
         print(f"{split} split: training {args.variants}", flush=True)
-        models = train_missing(split, args.variants.split(","), out, args.steps, args.set)
+        models = train_missing(split, [v for v in args.variants.split(",") if v], out, args.steps, args.set)
         drives = (args.test_drive or TEST_DRIVES[split]) if split == "honest" else None
         path = evaluate(split, models, out, args.set, drives)
         print(path.read_text())

@@ -49,6 +49,7 @@ from fviz.geometry import (
     NORMS,
     NormalizationError,
     algebraic,
+    apply_homography,
     epipolar_residuals,
     epipoles,
     f_distance,
@@ -59,6 +60,7 @@ from fviz.geometry import (
     recover_pose,
     rotation_error_deg,
     symmetric_epipolar_distance,
+    transfer_fundamental,
     translation_error_deg,
 )
 
@@ -248,6 +250,31 @@ def score(
         metrics["nsgd"] = 0.0 if name == GT_NAME else nsgd(F, pair.F_gt, pair.size_a, pair.size_b)
         metrics["gt_inlier_ratio"] = gt_inlier_ratio(pair.F_gt, m.x_a, m.x_b, inliers, pair.size_a, pair.size_b)
     return metrics, sed, inliers, pose
+
+
+def rows_in_frame(result: PairResult, H_a: np.ndarray, H_b: np.ndarray,
+                  eval_threshold_px: float = EVAL_THRESHOLD_PX) -> list[dict[str, Any]]:
+    """The EPI rows of :meth:`PairResult.rows` (``estimator``, ``error``, ``n_eval``, ``epi_abs_<norm>``,
+    ``epi_sqr_<norm>``) in other pixel coordinates x' = H x (3, 3) of each image: every F and match is mapped
+    there (:func:`fviz.geometry.transfer_fundamental`) and the evaluation matches are chosen again, under the
+    mapped F_gt, at ``eval_threshold_px`` of *that* frame. E.g. rectified KITTI -> the unrectified cameras, the
+    frame of the paper's F (:func:`fviz.data.kitti.raw_cameras`). Needs ground truth and the result's matches."""
+    if result.F_gt is None or result.matches is None:
+        raise FvizError(f"{result.pair['name']}: another frame's EPI needs the ground truth and the matches")
+    m = result.matches
+    x_a, x_b = apply_homography(H_a, m.x_a), apply_homography(H_b, m.x_b)
+    near = symmetric_epipolar_distance(transfer_fundamental(result.F_gt, H_a, H_b), x_a, x_b) < eval_threshold_px
+    x_a, x_b = x_a[near], x_b[near]
+    base = {k: v for k, v in result.pair.items() if not isinstance(v, (list, dict))}
+    rows = []
+    for r in result.estimators:
+        row = {**base, "estimator": r.name, "error": r.error or "", "n_eval": int(near.sum())}
+        if r.F is not None:
+            F = transfer_fundamental(r.F, H_a, H_b)
+            for n in NORMS:
+                row[f"epi_abs_{n}"], row[f"epi_sqr_{n}"] = epi_metrics(F, x_a, x_b, n)
+        rows.append(row)
+    return rows
 
 
 def evaluation_points(pair: Pair, m: Matches, eval_threshold_px: float) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray], str]:

@@ -29,6 +29,38 @@ HEAD_LABELS = {("base", False): "Base", ("base", True): "POS", ("epi", False): "
 ARCH_LABELS = {"single": "Single-stream", "siamese": "Siamese"}
 
 
+# The paper's published Table 1 (Poursaeed et al.): (norm, method) -> (Siamese EPI-ABS, EPI-SQR, Single-stream
+# EPI-ABS, EPI-SQR); the classical and ground-truth rows are the same in both halves. Method labels as in this table.
+PAPER_TABLE1 = {
+    ("etr", "Base"): (3.77, 27.16, 4.43, 34.34), ("etr", "POS"): (4.05, 21.90, 2.47, 9.79),
+    ("etr", "EPI"): (0.52, 0.28, 1.00, 0.99), ("etr", "EPI + POS"): (0.88, 1.02, 1.00, 1.00),
+    ("etr", "REC"): (0.56, 0.45, 0.99, 0.99), ("etr", "REC + POS"): (0.97, 0.98, 1.00, 0.99),
+    ("etr", "8-point"): (1.91, 152.83) * 2, ("etr", "LMedS"): (1.09, 25.50) * 2, ("etr", "RANSAC"): (0.60, 3.85) * 2,
+    ("etr", "Ground-truth"): (0.05, 0.004) * 2,
+    ("fbn", "Base"): (1.44, 2.58, 2.45, 9.99), ("fbn", "POS"): (1.97, 5.66, 2.78, 8.55),
+    ("fbn", "EPI"): (0.07, 0.01, 0.91, 0.91), ("fbn", "EPI + POS"): (0.06, 0.005, 0.67, 0.58),
+    ("fbn", "REC"): (0.92, 1.11, 0.78, 1.24), ("fbn", "REC + POS"): (0.43, 0.44, 0.87, 0.81),
+    ("fbn", "8-point"): (1.06, 11.7) * 2, ("fbn", "LMedS"): (0.39, 0.68) * 2, ("fbn", "RANSAC"): (0.27, 0.21) * 2,
+    ("fbn", "Ground-truth"): (0.05, 0.004) * 2,
+    ("abs", "Base"): (4.76, 30.63, 3.55, 18.04), ("abs", "POS"): (3.74, 22.59, 2.87, 10.4),
+    ("abs", "EPI"): (0.18, 0.06, 0.92, 1.94), ("abs", "EPI + POS"): (0.12, 0.03, 0.82, 0.77),
+    ("abs", "REC"): (0.22, 0.06, 0.77, 0.99), ("abs", "REC + POS"): (0.28, 0.10, 0.87, 0.81),
+    ("abs", "8-point"): (1.17, 15.4) * 2, ("abs", "LMedS"): (0.72, 3.88) * 2, ("abs", "RANSAC"): (0.33, 0.39) * 2,
+    ("abs", "Ground-truth"): (0.05, 0.004) * 2,
+}
+
+
+def paper_value(norm: str, label: str) -> tuple[float, float] | None:
+    """The paper's (EPI-ABS, EPI-SQR) for a row label of :func:`table_from_rows` ("Siamese REC + POS", "RANSAC",
+    "Ground-truth") under ``norm``; None where the paper has no such row (MAGSAC++, the constants)."""
+    arch, _, head = label.partition(" ")
+    if arch == "Single-stream" or arch == "Siamese":
+        v = PAPER_TABLE1.get((norm, head))
+        return None if v is None else (v[2:] if arch == "Single-stream" else v[:2])
+    v = PAPER_TABLE1.get((norm, label))
+    return None if v is None else v[:2]
+
+
 def deep_variants(specs: list[str]) -> dict[str, dict]:
     """Display name -> parsed variant ({arch, head, pos, norm}) of every deep estimator spec."""
     from fviz.estimators.deep import bundled_weights

@@ -27,7 +27,7 @@ import numpy as np
 
 from fviz.data.pair import LazyImage, Pair, PairId
 from fviz.errors import FvizError
-from fviz.geometry import fundamental_from_projections
+from fviz.geometry import fundamental_from_motion, fundamental_from_projections, normalize
 
 PAIR_KINDS = ("stereo", "temporal")
 # How far the ground truth can be trusted (README of the sample data): calibration vs poses.
@@ -146,6 +146,51 @@ def _decompose(P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Rectified P = K [I | t] -> (K, t)."""
     K = P[:, :3].copy()
     return K, np.linalg.solve(K, P[:, 3])
+
+
+# ----------------------------------------------------------------------------------------------- unrectified frame
+
+
+@dataclass(frozen=True)
+class RawCamera:
+    """One camera of a raw drive before rectification (``calib_cam_to_cam.txt``), distortion left out.
+
+    K: (3, 3) intrinsics; R, T: camera 0 -> this camera (X_cam = R X_0 + T, metres); size: (w, h) of the
+    unrectified image; H: (3, 3) rectified pixel -> unrectified (undistorted) pixel, K R_rect^T P_rect[:, :3]^-1
+    (a rotation about the camera centre, so exact at every depth).
+    """
+
+    K: np.ndarray
+    R: np.ndarray
+    T: np.ndarray
+    size: tuple[int, int]
+    H: np.ndarray
+
+
+def raw_cameras(calib: Path) -> dict[int, RawCamera]:
+    """The unrectified cameras of a raw drive's ``calib_cam_to_cam.txt``: the frame the paper's F lives in
+    (its F is built from K, R, T and has F33 != 0, unlike rectified stereo)."""
+    values = _read_key_values(calib, "calibration")
+    cams = {}
+    for cam in range(4):
+        if f"K_0{cam}" not in values:
+            continue
+        K = _entry(values, f"K_0{cam}", 9, calib).reshape(3, 3)
+        R = _entry(values, f"R_0{cam}", 9, calib).reshape(3, 3)
+        T = _entry(values, f"T_0{cam}", 3, calib)
+        w, h = _entry(values, f"S_0{cam}", 2, calib)
+        R_rect = _entry(values, f"R_rect_0{cam}", 9, calib).reshape(3, 3)
+        P_rect = _projection(values, f"P_rect_0{cam}", calib)
+        cams[cam] = RawCamera(K, R, T, (int(w), int(h)), K @ R_rect.T @ np.linalg.inv(P_rect[:, :3]))
+    if 0 not in cams:
+        raise FvizError(f"calibration {calib}: no 'K_00' entry (not a raw drive's calib_cam_to_cam.txt)")
+    return cams
+
+
+def unrectified_fundamental(a: RawCamera, b: RawCamera) -> np.ndarray:
+    """F between two unrectified cameras straight from K, R, T (``x_b^T F x_a = 0``), unit Frobenius norm."""
+    R = b.R @ a.R.T
+    return normalize(fundamental_from_motion(a.K, b.K, R, b.T - R @ a.T), "fbn")
 
 
 # ----------------------------------------------------------------------------------------------- oxts (raw drives)

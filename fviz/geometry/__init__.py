@@ -2,6 +2,7 @@
 
 from fviz.geometry.epipolar import (
     Epipole,
+    apply_homography,
     border_point,
     clip_lines,
     describe_epipole,
@@ -21,6 +22,7 @@ from fviz.geometry.fundamental import (
     is_valid,
     normalize,
     skew,
+    transfer_fundamental,
 )
 from fviz.geometry.pose import (
     AUC_THRESHOLDS_DEG,
@@ -45,6 +47,6 @@ __all__ = [
     "NORMS", "Epipole", "NormalizationError", "algebraic",
     "epipolar_residuals", "border_point", "clip_lines", "describe_epipole",
     "enforce_rank2", "epipoles", "f_distance", "fundamental_from_motion", "fundamental_from_projections",
-    "homogeneous", "is_valid", "lines_in_a", "lines_in_b", "normalize", "sampson_distance", "skew",
+    "apply_homography", "transfer_fundamental", "homogeneous", "is_valid", "lines_in_a", "lines_in_b", "normalize", "sampson_distance", "skew",
     "symmetric_epipolar_distance", "PRECISION_KEYS", "match_precision", "normalized_epipolar_distance",
 ]

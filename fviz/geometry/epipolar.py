@@ -17,6 +17,12 @@ def homogeneous(x: np.ndarray) -> np.ndarray:
     return np.concatenate([x, np.ones((*x.shape[:-1], 1))], axis=-1)
 
 
+def apply_homography(H: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Points mapped by a homography: x' ~ H x.  (3, 3), (N, 2) -> (N, 2)."""
+    y = homogeneous(x) @ np.asarray(H, dtype=np.float64).T
+    return y[..., :2] / y[..., 2:]
+
+
 def _unit_lines(lines: np.ndarray) -> np.ndarray:
     n = np.linalg.norm(lines[..., :2], axis=-1, keepdims=True)
     return lines / np.where(n > 0, n, 1.0)
