@@ -106,7 +106,7 @@ def run_estimator(name: str, fn: EstimateFn, pair, x_a: np.ndarray, x_b: np.ndar
         return Estimate(name, None, None, seconds, what)
     try:
         F, mask = _interpret(out, len(x_a))
-    except (TypeError, ValueError) as exc:  # a user's function returning something else
+    except Exception as exc:  # a user's function returning something else (or an array-like that will not convert)
         return Estimate(name, None, None, seconds, f"returned {_describe(out)}, not F or (F, inlier_mask) ({exc})")
     if F is None or not is_valid(F):
         return Estimate(name, None, None, seconds, "returned no valid 3x3 F (None, NaN or all zero)")
@@ -123,13 +123,27 @@ def _interpret(out: Any, n_matches: int) -> tuple[np.ndarray | None, np.ndarray 
         F, mask = out, None
     if F is None:
         return None, None
-    F = np.asarray(F, dtype=np.float64)
+    F = _as_array(F)
+    if F.dtype.kind == "c":
+        raise ValueError("a complex F: return its real part yourself if that is what you mean")
+    F = F.astype(np.float64)
     if F.shape != (3, 3):
         raise ValueError(f"shape {F.shape}")
     if mask is not None:
-        mask = np.asarray(mask).reshape(-1)
-        mask = mask.astype(bool) if mask.shape[0] == n_matches and mask.dtype.kind in "biuf" else None
+        mask = _as_array(mask).reshape(-1)
+        if mask.shape[0] != n_matches:
+            raise ValueError(f"an inlier mask of {mask.shape[0]} entries for {n_matches} matches")
+        if mask.dtype.kind not in "biuf":
+            raise ValueError(f"an inlier mask of {mask.dtype} values")
+        mask = mask.astype(bool)
     return F, mask
+
+
+def _as_array(x: Any) -> np.ndarray:
+    """A numpy array of what an estimator returned: torch tensors detached and moved to the CPU first."""
+    if hasattr(x, "detach") and hasattr(x, "cpu"):  # a torch tensor, possibly requiring grad or on a GPU
+        x = x.detach().cpu().numpy()
+    return np.asarray(x)
 
 
 def _describe(out: Any) -> str:

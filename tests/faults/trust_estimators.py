@@ -34,3 +34,29 @@ def vandal(pair, x_a, x_b):
 
 def hangs(pair, x_a, x_b):
     threading.Event().wait()  # forever
+
+
+def grad_tensor(pair, x_a, x_b):
+    """8-point's F as a torch tensor that requires grad (a network's raw output)."""
+    import torch
+
+    return torch.tensor(eight(pair, x_a, x_b), requires_grad=True) * 1.0
+
+
+class _Unconvertible:
+    def __array__(self, *args, **kwargs):
+        raise RuntimeError("this array-like refuses to convert")
+
+
+def unconvertible(pair, x_a, x_b):
+    return _Unconvertible()
+
+
+def complex_f(pair, x_a, x_b):
+    return eight(pair, x_a, x_b) + 1e-3j
+
+
+def short_mask(pair, x_a, x_b):
+    import numpy as np
+
+    return eight(pair, x_a, x_b), np.ones(len(x_a) - 1, bool)
