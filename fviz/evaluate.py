@@ -163,8 +163,8 @@ def _json_float(v: float) -> float | None:
 
 def _ray_angle_deg(K: np.ndarray, e1: np.ndarray, e2: np.ndarray) -> float:
     r1, r2 = np.linalg.solve(K, e1), np.linalg.solve(K, e2)
-    c = abs(r1 @ r2) / (np.linalg.norm(r1) * np.linalg.norm(r2))
-    return float(np.degrees(np.arccos(np.clip(c, 0.0, 1.0))))
+    # atan2, not arccos of the cosine: exact (0) for one ray twice, accurate for small angles
+    return float(np.degrees(np.arctan2(np.linalg.norm(np.cross(r1, r2)), abs(r1 @ r2))))
 
 
 def epi_metrics(F: np.ndarray, x_a: np.ndarray, x_b: np.ndarray, norm: str) -> tuple[float, float]:

@@ -84,6 +84,10 @@ def pose_matrix(values: np.ndarray, what: str) -> np.ndarray:
     """12 (3x4) or 16 (4x4) row-major numbers -> (4, 4) T, with R checked to be a rotation."""
     T = np.eye(4)
     T[:3] = np.asarray(values, float).reshape(-1, 4)[:3]
+    with np.errstate(over="ignore", invalid="ignore"):
+        finite = np.isfinite(T).all() and np.isfinite(np.linalg.norm(T[:3, 3]))
+    if not finite:
+        raise FvizError(f"{what}: its translation is not a finite number of metres (too large to compute with)")
     R = T[:3, :3]
     if np.abs(R @ R.T - np.eye(3)).max() > 1e-3 or np.linalg.det(R) < 0:
         raise FvizError(f"{what}: its 3x3 part is not a rotation (R R^T != I)")
@@ -98,7 +102,7 @@ def parse_F(text: str, what: str = "--F-gt") -> np.ndarray:
     F = parse_numbers(text, (9,), what).reshape(3, 3)
     if not is_valid(F):
         raise FvizError(f"{what}: all zero")
-    return normalize(F, "fbn")
+    return normalize(F / np.abs(F).max(), "fbn")  # scaled first: a norm of subnormal entries (1e-320) underflows
 
 
 def rotation_map(k: int, width: int, height: int) -> np.ndarray:

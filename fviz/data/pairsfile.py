@@ -41,8 +41,9 @@ class PairLine:
 def parse_line(fields: list[str], where: str, line: int) -> PairLine:
     if len(fields) == 2:
         return PairLine(line, *fields)
-    if len(fields) not in (4, 32, 36, 38):
-        raise FvizError(f"{where}: {len(fields)} fields; expected 'name0 name1' or 'name0 name1 rot0 rot1 K0[9] K1[9] T_0to1[16]'")
+    if len(fields) not in (4, 22, 34, 38):  # names and rotations, then K0 K1, then T as 12 or 16 numbers
+        raise FvizError(f"{where}: {len(fields)} fields; expected 'name0 name1' or 'name0 name1 rot0 rot1 K0[9] K1[9] "
+                        "T_0to1[16]' (38 fields, or 34 with T as 12 numbers)")
     try:
         rot = (int(fields[2]), int(fields[3]))
         numbers = np.array([float(v) for v in fields[4:]], float)
@@ -68,7 +69,7 @@ def read_pairs(path: str | Path) -> list[PairLine]:
     if path.is_dir():
         raise FvizError(f"--pairs {path}: a folder, not a pairs file")
     try:
-        text = path.read_text()
+        text = path.read_text(encoding="utf-8-sig")  # a byte-order mark some editors write is not part of a name
     except FileNotFoundError:
         raise FvizError(f"--pairs {path}: no such file") from None
     except (OSError, UnicodeDecodeError) as exc:
