@@ -1,5 +1,5 @@
 """Why ``-e deep`` sees a pair mirrored and reversed, its yaw scaled: the motion network on held-out KITTI drives, one pass
-against four ways of adding the mirrored and the reversed pair (README, "Mirrored and reversed pairs, and the yaw gain").
+against four ways of adding the mirrored and the reversed pair (docs/changelog.md, 2026-12-01).
 
     python benchmarks/bench_deep_mirror.py --kitti-root ../kitti-train-data/odometry --test 04 --test 2011_09_26_drive_0005
 
@@ -21,8 +21,8 @@ separate pairs, on 1 and 2 threads, measured in the same run.
 
 ``--fit-yaw-gain`` first fits that gain on the recipe's training pairs (``data.sequences`` and ``data.drives``,
 step 1 forward; :func:`fviz.train.heldout.fit_yaw_gain`) and adds its row.
-Held-out pairs: ``--recipe``'s data settings (default: recipes/kitti_motion.toml, both gray cameras; README's
-table: ``--cameras 0``), temporal step 1 forward, of the ``--test`` sequences or drives.
+Held-out pairs: ``--recipe``'s data settings (default: recipes/kitti_motion.toml, both gray cameras; docs/changelog.md's
+figures: ``--cameras 0``), temporal step 1 forward, of the ``--test`` sequences or drives.
 """
 
 from __future__ import annotations

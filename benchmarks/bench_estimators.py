@@ -1,6 +1,6 @@
 """Accuracy and time of every match-based estimator on the 49 temporal pairs of the sample sequence 00.
 
-    python benchmarks/bench_estimators.py                 # the table of README's "Estimators" section
+    python benchmarks/bench_estimators.py                 # the table of docs/estimators.md
     python benchmarks/bench_estimators.py --frames 0:10 --json out.json
 
 SIFT features and matches are computed once per pair (fviz's defaults: 2000 keypoints, ratio 0.8, mutual);

@@ -105,7 +105,7 @@ def test_a_pair_without_cameras_gets_one_pass(seq04):
 
 def test_three_views_bring_deep_closer_to_the_ground_truth_on_held_out_pairs(seq04):
     """Median SED and rotation error on the 18 temporal pairs of 04's sample (cameras 2 and 3): lower than one
-    pass (measured on whole held-out drives, README "Mirrored and reversed pairs, and the yaw gain")."""
+    pass (measured on whole held-out drives, docs/changelog.md, 2026-12-01)."""
     from fviz.evaluate import evaluate_pair
     from fviz.estimators.deep import deep_estimator as make
 

@@ -4,11 +4,11 @@
   (two cameras of one rig at one time) go to ``assets/fviz-deep-stereo.pt``, every other pair to
   ``assets/fviz-deep.pt``, which also sees the pair mirrored and reversed when the cameras are known and
   gives the F of the mean of its three motions, its yaw times the model's calibrated gain
-  (:func:`fviz.models.predict.predict_F_batch`, :func:`bundled_yaw_gain`; README "Mirrored and reversed
-  pairs": held-out median SED 30-60 % lower, rotation error 20-55 % lower).
+  (:func:`fviz.models.predict.predict_F_batch`, :func:`bundled_yaw_gain`; docs/changelog.md,
+  2026-12-01: held-out median SED 30-60 % lower, rotation error 20-55 % lower).
   Why two models: a rectified rig has one F, so a stereo network learns that rig's lateral baseline,
   while a motion network must follow the car; trained on both kinds at once, one network traded its
-  temporal accuracy for a stereo F it did not reach (README, "The paper's experiment").
+  temporal accuracy for a stereo F it did not reach (docs/training.md, docs/changelog.md).
   ``$FVIZ_WEIGHTS`` names one file for every pair instead;
 - ``deep:synthetic``: the model trained on synthetic scenes only (``assets/fviz-deep-synthetic.pt``
   once KITTI-trained weights take ``fviz-deep.pt``; until then the bundled model is that one);

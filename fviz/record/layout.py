@@ -182,7 +182,7 @@ def compare_height(n_bars: int, gt: bool = True) -> float:
     """Height of the comparison chart with the metrics of :func:`compared_metrics` and ``n_bars`` F's."""
     return len(compared_metrics(gt)) * (BAR_HEAD + (n_bars + 0.5) * BAR_PITCH) + BAR_HEAD + CDF_H + 30.0
 # Metric series of a run (``metrics/{key}``), one per F, with their titles. f_dist is left out: it misranks
-# (README, Metrics).
+# (docs/metrics.md).
 SERIES_METRICS = ("sed_median", "rot_err_deg", "trans_err_deg", "nsgd", "epipole_err_deg", "inlier_ratio")
 METRIC_TITLES = {
     "sed_median": "median SED (px)", "sed_mean": "mean SED (px)", "sampson_median": "median Sampson (px)",

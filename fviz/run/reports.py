@@ -312,7 +312,7 @@ def sweep_markdown(config: RunConfig, stats: _Stats) -> list[str]:
     if not curves:
         return []
     lines = ["", "## Threshold sweep", "",
-             "Each robust estimator at every threshold (px, in its own unit: see README's estimator table). *best over "
+             "Each robust estimator at every threshold (px, in its own unit: see docs/estimators.md). *best over "
              "the run*: the threshold of the highest AUC@10°; `-th-oracle`: per pair, the threshold whose F is closest "
              "to the ground truth. Both are chosen with the labels (oracles, as glue-factory's `ransac_th=-1`).", "",
              "| estimator | threshold px | AUC@10° | median SED px | |", "|---|---|---|---|---|"]
