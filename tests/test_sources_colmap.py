@@ -14,8 +14,8 @@ from fviz.errors import FvizError
 
 
 def clean_model(tmp_path, cameras_txt=None, images_txt=None, points_txt=""):
-    """The fountain model with its camera numbers written as numbers (the shared cameras.txt holds
-    'np.float64(2759.48)': a bad file fviz must name, see test_bad_cameras_txt_names_file_and_line)."""
+    """The fountain model in tmp_path, its files replaceable (the shared cameras.txt held 'np.float64(2759.48)'
+    tokens once; they are turned back into numbers if a copy still holds them)."""
     src = fountain() / "colmap"
     d = tmp_path / "model"
     d.mkdir()
@@ -33,9 +33,11 @@ def inspect_json(*args):
 
 
 def test_bad_cameras_txt_names_file_and_line(tmp_path):
-    d = fountain()
-    proc = run_fviz("inspect", "pair", "--colmap", d / "colmap", "--out", tmp_path / "x.rrd")
-    assert_one_line_error(proc, 2, f"{d / 'colmap' / 'cameras.txt'}:2", "np.float64(2759.48)")
+    """A cameras.txt written by numpy's repr (the shared copy was once such a file): file, line and token named."""
+    cams = (fountain() / "colmap" / "cameras.txt").read_text().replace(" 2759.48 ", " np.float64(2759.48) ")
+    model = clean_model(tmp_path, cameras_txt=cams)
+    proc = run_fviz("inspect", "pair", "--colmap", model, "--out", tmp_path / "x.rrd")
+    assert_one_line_error(proc, 2, f"{model / 'cameras.txt'}:2", "np.float64(2759.48)")
 
 
 def test_text_model_gt_is_the_published_cameras_with_colmaps_origin_converted(tmp_path):
