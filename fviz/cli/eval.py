@@ -225,6 +225,22 @@ def print_outcome(outcome, what: str = "eval") -> None:
         raise typer.Exit(130)
 
 
+def print_failures(out_dir: Path) -> None:
+    """The run's failures grouped by cause (summary.json's ``failures``), one line each, on stderr."""
+    import json
+
+    from fviz.failures import failure_lines
+    from fviz.run.config import SUMMARY_JSON
+
+    path = Path(out_dir) / SUMMARY_JSON
+    try:
+        doc = json.loads(path.read_text()).get("failures")
+    except (OSError, ValueError):
+        return
+    for line in failure_lines(doc):
+        print(line, file=sys.stderr)
+
+
 def cpu_cores() -> int:
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
 
@@ -286,6 +302,7 @@ def eval_(args: RunArgs, resume: Resume = False) -> None:
     outcome = run_eval(config, args.out_dir, worker_count(args.workers), resume, args.progress)
     print_figures(args.out_dir)
     print_outcome(outcome)
+    print_failures(args.out_dir)
 
 
 def merge(

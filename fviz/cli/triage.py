@@ -26,7 +26,7 @@ def triage(args: RunArgs, by: By = None, metric: Metric = "sed_median", top: Top
     Runs eval first with resume semantics: a finished run in --out-dir is reused (its estimators kept, only missing
     pairs or estimators computed). Without selection flags, the run in --out-dir is triaged as it was configured.
     """
-    from fviz.cli.eval import _default_estimators, print_figures, worker_count
+    from fviz.cli.eval import _default_estimators, print_failures, print_figures, worker_count
     from fviz.run.store import locked
     from fviz.triage import run_triage
 
@@ -38,6 +38,7 @@ def triage(args: RunArgs, by: By = None, metric: Metric = "sed_median", top: Top
     print_outcome(result.eval, "triage")
     _print_findings(result)
     _print_ranking(result, metric, top)
+    print_failures(args.out_dir)
 
 
 def _print_findings(result) -> None:
