@@ -278,7 +278,7 @@ def print_figures(out_dir: Path) -> None:
     fmt = lambda v: "n/a" if v is None else f"{v:.3g}"  # noqa: E731
     t = Table(title=f"{doc['selection']}: {doc['pairs']} pairs")
     first = next(iter(doc["estimators"].values()), {"pose_auc": {}})
-    for c in ["estimator", *(f"AUC@{k}°" for k in first["pose_auc"]), "NSGD recall", "med SED px", "med Sampson px", "failed"]:
+    for c in ["estimator", *(f"AUC@{k}°" for k in first["pose_auc"]), "NSGD recall", "med SED px", "med Sampson px", "failed (no F)"]:
         t.add_column(c, justify="left" if c == "estimator" else "right")
     for name, f in doc["estimators"].items():
         t.add_row(name + (" (oracle)" if f["oracle"] else ""), *(fmt(v) for v in f["pose_auc"].values()),

@@ -69,8 +69,10 @@ def compare(
     run_b: Annotated[Optional[Path], typer.Option("--run-b", help="Run folder b.")] = None,
     estimator: Annotated[Optional[str], typer.Option("--estimator", "-e", help="The estimator compared across --run-a / --run-b.")] = None,
     metric: Annotated[str, typer.Option("--metric", help="Metric compared pair by pair, e.g. sed_median, pose_err_deg, nsgd, inlier_ratio.")] = "sed_median",
-    fail_threshold: Annotated[float, typer.Option("--fail-threshold", help="A metric worse than this is a failure (px for sed_median).",
-                                                  callback=o.checked("--fail-threshold", math.isfinite, "must be a number"))] = 2.0,
+    fail_threshold: Annotated[Optional[float], typer.Option(
+        "--fail-threshold", help="A metric worse than this fails the pair (default: the metric's own threshold: "
+        "sed/sampson > 2 px, pose/rotation/translation/epipole errors > 10 deg, nsgd > 0.05, inlier ratios < 0.5).",
+        callback=o.checked("--fail-threshold", lambda v: v is None or math.isfinite(v), "must be a number"))] = None,
     tie: Annotated[float, typer.Option("--tie", help="Differences up to this (in the metric's unit) are ties.",
                                        callback=o.checked("--tie", lambda v: math.isfinite(v) and v >= 0, "must be a number >= 0"))] = 0.0,
     tie_rel: Annotated[float, typer.Option("--tie-rel", help="Differences up to this fraction of the larger value are ties (0: none).",

@@ -385,7 +385,7 @@ def figures_markdown(figures: dict[str, dict[str, Any]]) -> list[str]:
     aucs = next(iter(figures.values()), {}).get("pose_auc", {})
     lines = [
         "| estimator | " + " | ".join(f"AUC@{t}°" for t in aucs) + f" | NSGD recall (<{NSGD_RECALL_THRESHOLD:g}) | "
-        "median SED px | median Sampson px | failed |",
+        "median SED px | median Sampson px | failed (no F) |",
         "|---|" + "---|" * (len(aucs) + 4),
     ]
     for est, f in figures.items():
