@@ -229,3 +229,22 @@ def test_each_metric_fails_by_its_own_rule_named_in_the_table(runs):
                "--out", a / "strict.md")
     assert "inlier_ratio < 0.99 (`--fail-threshold`)" in (a / "strict.md").read_text() and "inlier_ratio < 0.99" in r.output
     assert compare(Side(a, "magsac"), Side(a, "8point"), "epi_abs").fails_label == "no value"
+
+
+def test_the_run_folder_is_given_one_way_everywhere(runs, tmp_path):
+    """`table RUN` and `--out-dir RUN` both work in table, compare and triage (issue 28 §2); two different ones are
+    refused."""
+    a, _ = runs
+    shutil.copytree(a, tmp_path / "run")
+    run = tmp_path / "run"
+    invoke("compare", run, "--a", "magsac", "--b", "8point")
+    assert "magsac better (wins)" in (run / "compare.md").read_text()
+    invoke("table", "--out-dir", run)
+    first = (run / "table.md").read_text()
+    invoke("table", run)
+    assert (run / "table.md").read_text() == first
+    r = invoke("triage", run, "--by", "magsac", "--top", "1", "--no-progress")
+    assert "0 evaluated now" in r.output and (run / "triage.md").is_file()
+    r = run_fviz("compare", run, "--out-dir", a, "--a", "magsac", "--b", "8point")
+    assert_one_line_error(r, 2, f"{run} and --out-dir {a}: two run folders")
+    assert_one_line_error(run_fviz("table"), 2, "table: give the run folder, as RUN or --out-dir RUN")

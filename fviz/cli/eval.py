@@ -38,6 +38,9 @@ Full = Annotated[bool, typer.Option("--full", help="Record every pair's images, 
 Progress = Annotated[bool, typer.Option("--progress/--no-progress", help="Progress bar with ETA on stderr.")]
 
 
+DEFAULT_OUT_DIR = Path("runs/eval")
+
+
 def _run_options(
     kitti_root: o.KittiRoot = None,
     sequence: o.Sequence_ = None,
@@ -73,7 +76,7 @@ def _run_options(
     norm: o.Norm = "fbn",
     eval_threshold: o.EvalThreshold = 2.0,
     estimator_timeout: o.EstimatorTimeout = 600.0,
-    out_dir: OutDir = Path("runs/eval"),
+    out_dir: OutDir = DEFAULT_OUT_DIR,
     workers: Workers = None,
     shard: Shard = None,
     full: Full = False,
