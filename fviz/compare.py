@@ -1,9 +1,11 @@
 """Compare two estimators pair by pair: wins, losses, ties, and the pairs where exactly one fails.
 
 Sides come from the metrics.csv of ``fviz eval`` runs: two estimators of one run, or one estimator
-of two runs (pairs matched by name). A side *fails* on a pair when the pair or the estimator errored,
-the metric is NaN, or the metric is worse than ``fail_threshold`` (above it; below it for metrics
-where higher is better). Wins and losses count the pairs where both sides have a value; a difference
+of two runs (pairs matched by name). A side *failed* on a pair when the pair or the estimator errored
+(no value); it *fails* the metric when it failed or its value is past the metric's own threshold
+(:data:`fviz.verdicts.FAIL_RULES`: ``sed_median > 2 px``, ``nsgd > 0.05``, ``inlier_ratio < 0.5``...; above it, or
+below it where higher is better), or past ``fail_threshold`` when given. A metric without a threshold fails only where
+there is no value. Every count of "fails" is labelled with its rule (:func:`fviz.verdicts.fails_label`). Wins and losses count the pairs where both sides have a value; a difference
 within the tolerance (``tie`` absolute, ``tie_rel`` relative to the larger of the two values) is a tie.
 
 Beside the counts: the per-pair differences (a - b) and Wilcoxon's signed-rank test of them (two-sided;
@@ -20,10 +22,10 @@ from pathlib import Path
 
 from fviz.atomic import write_text
 from fviz.errors import FvizError
-from fviz.triage import HIGHER_IS_BETTER
+from fviz.verdicts import HIGHER_IS_BETTER, fails, fails_label
 
 COMPARE_FILE = "compare.md"
-FAIL_THRESHOLD = 2.0  # px: sed_median above this is a failure (the paper's evaluation threshold)
+FAIL_THRESHOLD = None  # the metric's own threshold (fviz.verdicts); --fail-threshold replaces it
 TIE_REL = 0.05  # default: values within 5 % of the larger one are a tie (a 0.21 vs 0.2101 px "win" says nothing)
 EXACT_MAX_N = 50  # Wilcoxon: exact distribution up to this many non-zero differences
 
@@ -43,7 +45,7 @@ class Comparison:
     a: Side
     b: Side
     metric: str
-    fail_threshold: float
+    fail_threshold: float | None
     wins: list[str] = field(default_factory=list)  # a better
     losses: list[str] = field(default_factory=list)  # b better
     ties: list[str] = field(default_factory=list)
@@ -51,9 +53,16 @@ class Comparison:
     only_b_fails: list[str] = field(default_factory=list)
     both_fail: list[str] = field(default_factory=list)
     missing: list[str] = field(default_factory=list)  # pairs of one side only
+    a_failed: list[str] = field(default_factory=list)  # no value: the pair or the estimator errored
+    b_failed: list[str] = field(default_factory=list)
     values: dict[str, tuple[float, float]] = field(default_factory=dict)
     tie: float = 0.0
     tie_rel: float = TIE_REL
+
+    @property
+    def fails_label(self) -> str:
+        """What "fails" means here: "sed_median > 2 px", "inlier_ratio < 0.5", "no value"."""
+        return fails_label(self.metric, self.fail_threshold)
 
     def differences(self) -> list[tuple[str, float, float, float]]:
         """(pair, a, b, a - b) where both sides have a value, largest |a - b| first."""
@@ -106,16 +115,12 @@ def read_side(side: Side, metric: str) -> dict[str, tuple[float, str]]:
     return out
 
 
-def _fails(v: float, error: str, threshold: float, higher_better: bool) -> bool:
-    return bool(error) or not math.isfinite(v) or (v < threshold if higher_better else v > threshold)
-
-
 def is_tie(x: float, y: float, tie: float = 0.0, tie_rel: float = TIE_REL) -> bool:
     """Whether two values differ by no more than ``tie`` or ``tie_rel`` of the larger magnitude."""
     return abs(x - y) <= max(tie, tie_rel * max(abs(x), abs(y)))
 
 
-def compare(a: Side, b: Side, metric: str = "sed_median", fail_threshold: float = FAIL_THRESHOLD,
+def compare(a: Side, b: Side, metric: str = "sed_median", fail_threshold: float | None = FAIL_THRESHOLD,
             tie: float = 0.0, tie_rel: float = TIE_REL) -> Comparison:
     """Pair-by-pair comparison of side a against side b."""
     if a.estimator == b.estimator and Path(a.run).resolve() == Path(b.run).resolve():
@@ -127,7 +132,10 @@ def compare(a: Side, b: Side, metric: str = "sed_median", fail_threshold: float 
     for name in [n for n in va if n in vb]:
         (x, ea), (y, eb) = va[name], vb[name]
         c.values[name] = (x, y)
-        fa, fb = _fails(x, ea, fail_threshold, hb), _fails(y, eb, fail_threshold, hb)
+        fa, fb = fails(metric, x, ea, fail_threshold), fails(metric, y, eb, fail_threshold)
+        for failed, v, e in ((c.a_failed, x, ea), (c.b_failed, y, eb)):
+            if e or not math.isfinite(v):
+                failed.append(name)
         if fa and fb:
             c.both_fail.append(name)
         elif fa:
@@ -210,14 +218,17 @@ def _median_diff(c: Comparison) -> float:
 def summary_rows(c: Comparison) -> list[tuple[str, str]]:
     """(what, count) lines of the comparison, as printed and written."""
     na, nb = c.names
+    label = c.fails_label
     return [
         ("pairs compared", str(len(c.values))),
         (f"{na} better (wins)", str(len(c.wins))),
         (f"{nb} better (losses)", str(len(c.losses))),
         ("ties", str(len(c.ties))),
-        (f"only {na} fails", str(len(c.only_a_fails))),
-        (f"only {nb} fails", str(len(c.only_b_fails))),
-        ("both fail", str(len(c.both_fail))),
+        (f"{na} failed (no value)", str(len(c.a_failed))),
+        (f"{nb} failed (no value)", str(len(c.b_failed))),
+        (f"only {na} fails ({label})", str(len(c.only_a_fails))),
+        (f"only {nb} fails ({label})", str(len(c.only_b_fails))),
+        (f"both fail ({label})", str(len(c.both_fail))),
         (f"median {c.metric} a - b", f"{_median_diff(c):.4g}"),
         ("Wilcoxon signed-rank p (two-sided)", _p_text(c.wilcoxon())),
         ("pairs in one run only", str(len(c.missing))),
@@ -241,14 +252,16 @@ def _what(c: Comparison) -> str:
 
 
 def compare_markdown(c: Comparison) -> str:
-    worse = "below" if c.metric in HIGHER_IS_BETTER else "above"
     na, nb = c.names
+    rule = (f"its {c.fails_label}" + ("" if c.fail_threshold is None else " (`--fail-threshold`)")
+            if c.fails_label != "no value" else f"(`{c.metric}` has no threshold: give `--fail-threshold`)")
     lines = [
         "# fviz compare",
         "",
         _what(c),
         "",
-        f"A side fails on a pair when it errors, has no value, or its {c.metric} is {worse} {c.fail_threshold:g}. "
+        f"A side *failed* on a pair when it errored (no value: eval's `failed`); it *fails* the pair when it failed or "
+        f"{rule}. "
         f"Wins and losses count pairs where both have a value; {_tie_text(c)} (`--tie`, `--tie-rel`). Wilcoxon's "
         "signed-rank test asks whether the per-pair differences a - b are centred on zero (small p: one side is "
         "better across the pairs, not just on a few).",
@@ -257,7 +270,8 @@ def compare_markdown(c: Comparison) -> str:
         "|---|---|",
         *[f"| {what} | {n} |" for what, n in summary_rows(c)],
     ]
-    for title, names in ((f"Only {na} fails", c.only_a_fails), (f"Only {nb} fails", c.only_b_fails)):
+    for title, names in ((f"Only {na} fails ({c.fails_label})", c.only_a_fails),
+                         (f"Only {nb} fails ({c.fails_label})", c.only_b_fails)):
         lines += ["", f"## {title}", "", "| pair | a | b |", "|---|---|---|"]
         lines += [f"| `{n}` | {_v(c, n, 0)} | {_v(c, n, 1)} |" for n in names] or ["| (none) | | |"]
     better = "larger" if c.metric in HIGHER_IS_BETTER else "smaller"

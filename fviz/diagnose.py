@@ -32,6 +32,18 @@ GT_AGREE_MIN = 0.5  # ... of which fewer than this within the evaluation thresho
 GT_SUSPECT_FIT_PX = 0.5  # a tight fit: median SED below this
 GT_SUSPECT_DIRECTION_DEG = 6.0
 GT_SUSPECT_ROTATION_DEG = 1.0
+# the ground truth must explain the matches worse than the estimates do: its median SED on an estimate's inliers
+# above GT_SUSPECT_RATIO times the estimate's own, and above it by a margin that grows with the ground truth's stated
+# accuracy (Pair.gt_accuracy_px): GT_SUSPECT_MARGIN_PX or half the accuracy on the residuals alone, and
+# GT_SUSPECT_DIRECTION_MARGIN_PX or a tenth of it where the direction test (forward motion) adds its evidence
+GT_SUSPECT_RATIO = 1.5
+GT_SUSPECT_MARGIN_PX = 1.0
+GT_SUSPECT_ACCURACY_SHARE = 0.5
+GT_SUSPECT_DIRECTION_MARGIN_PX = 0.25
+GT_SUSPECT_DIRECTION_ACCURACY_SHARE = 0.1
+GT_SUSPECT_EPIPOLE_NEAR = 1.0  # the direction test only where F_gt's epipoles lie within this many image diagonals
+# of the image centres (forward motion): farther (sideways motion, rectified stereo: at infinity) a direction
+# several degrees off moves the lines by less than the matches' noise, and says nothing
 PLANAR_FRACTION = 0.8
 SMALL_BASELINE_M = 0.1
 ROTATION_FRACTION = 0.8
@@ -112,8 +124,12 @@ def _estimator_evidence(pair, r, m, gt_sed: np.ndarray, eval_threshold: float) -
     inl = np.zeros(len(m), bool) if r.inliers is None else r.inliers
     n = int(inl.sum())
     known = n and gt_sed is not None
+    from fviz.geometry import symmetric_epipolar_distance
+
+    own = symmetric_epipolar_distance(r.F, m.x_a[inl], m.x_b[inl]) if n else np.zeros(0)
     return {
         "n_inliers": n,
+        "sed_median_inliers": float(np.median(own)) if n else float("nan"),
         "homography_fraction": homography_fraction(m.x_a[inl], m.x_b[inl]),
         "gt_agree": float(np.mean(gt_sed[inl] < eval_threshold)) if known else float("nan"),
         "gt_sed_median_inliers": float(np.median(gt_sed[inl])) if known else float("nan"),
@@ -142,6 +158,8 @@ def diagnose(pair, result, two_view: bool = True) -> dict[str, Any]:
     ahead_sed = symmetric_epipolar_distance(ahead(pair, xa, xb), xa, xb) if pair.has_K else np.zeros(0)
     diag = {
         "n_matches": len(m),
+        "gt_accuracy_px": pair.gt_accuracy_px,
+        "gt_epipole_distance": gt_epipole_distance(pair) if pair.has_gt else nan,
         "baseline_m": float(np.linalg.norm(pair.t)) if pair.t is not None else nan,
         "rotation_deg": float(angle),
         "median_flow_px": float(np.median(flow)) if len(m) else float("nan"),
@@ -151,6 +169,20 @@ def diagnose(pair, result, two_view: bool = True) -> dict[str, Any]:
         "estimators": {r.name: _estimator_evidence(pair, r, m, gt_sed, result.eval_threshold_px) for r in _fitted(result)},
     }
     return with_two_view(diag, two_view_evidence(pair, result)) if two_view else diag
+
+
+def gt_epipole_distance(pair) -> float:
+    """How far F_gt's epipoles lie from the image centres, in image diagonals (the larger of the two; inf for an
+    epipole at infinity: rectified stereo)."""
+    from fviz.geometry import epipoles
+
+    far = 0.0
+    for e, (w, h) in zip(epipoles(pair.F_gt), (pair.size_a, pair.size_b)):
+        diag = float(np.hypot(w, h))
+        if abs(e[2]) * 1e6 <= np.linalg.norm(e[:2]):
+            return float("inf")
+        far = max(far, float(np.hypot(e[0] / e[2] - w / 2, e[1] / e[2] - h / 2)) / diag)
+    return far
 
 
 def two_view_evidence(pair, result) -> dict[str, Any]:
@@ -200,21 +232,34 @@ def ill_conditioned(diag: dict[str, Any], ev: dict[str, Any]) -> str:
     return ""
 
 
+def _margins(diag: dict[str, Any]) -> tuple[float, float]:
+    """(residual margin, direction margin) px for this pair's ground truth (its stated accuracy; 0 when unknown)."""
+    acc = _num(diag.get("gt_accuracy_px"))
+    acc = 0.0 if not np.isfinite(acc) else acc
+    return (max(GT_SUSPECT_MARGIN_PX, GT_SUSPECT_ACCURACY_SHARE * acc),
+            max(GT_SUSPECT_DIRECTION_MARGIN_PX, GT_SUSPECT_DIRECTION_ACCURACY_SHARE * acc))
+
+
 def gt_suspect(diag: dict[str, Any] | None, estimators: list[dict[str, Any]]) -> dict[str, str] | None:
     """Whether the pair's ground truth looks wrong: {"why": ..., "reference": the estimator to trust instead}
     or None. ``diag``: :func:`diagnose`'s evidence; ``estimators``: the pair's rows ({name, error, metrics},
     as in results.jsonl and ``inspect --json``).
 
-    From the estimators that fit the matches and find a consensus (inlier ratio >= GT_SUSPECT_INLIER_RATIO):
+    The ground truth is suspect only when it explains the matches worse than the estimates do: on an estimate's
+    inliers, F_gt's median SED is above GT_SUSPECT_RATIO times the estimate's own and above it by a margin that
+    grows with the ground truth's stated accuracy (``gt_accuracy_px``). From the estimators that fit the matches and
+    find a consensus (inlier ratio >= GT_SUSPECT_INLIER_RATIO):
 
-    - the largest consensus's inliers sit off F_gt (fewer than GT_AGREE_MIN of them within the evaluation
-      threshold of its lines, or their median distance above it): measured on the inliers' residuals, so it
-      holds on any pair, planar and small-baseline ones included;
-    - or, on a well-conditioned pair only (:func:`ill_conditioned` says nothing), every tight fit (median SED <
-      GT_SUSPECT_FIT_PX) puts the epipole more than GT_SUSPECT_DIRECTION_DEG or the rotation more than
-      GT_SUSPECT_ROTATION_DEG from the ground truth's: forward motion, where a pose 13 deg off still leaves
-      most matches within 1-2 px of its lines. Where the epipole is poorly determined (small baseline, one
-      plane) a 6 deg disagreement says nothing, and that pair is judged by the first test alone."""
+    - on the residuals alone: the largest consensus's inliers sit off F_gt by more than the residual margin
+      (GT_SUSPECT_MARGIN_PX, or GT_SUSPECT_ACCURACY_SHARE of the accuracy): it holds on any pair, planar and
+      small-baseline ones included;
+    - or, on a well-conditioned pair (:func:`ill_conditioned` says nothing) whose F_gt puts the epipoles near the
+      images (within GT_SUSPECT_EPIPOLE_NEAR diagonals: forward motion, where a pose 13 deg off still leaves most
+      matches within 1-2 px of its lines), every tight fit (median SED < GT_SUSPECT_FIT_PX) puts the epipole more
+      than GT_SUSPECT_DIRECTION_DEG or the rotation more than GT_SUSPECT_ROTATION_DEG from the ground truth's, and
+      fits its own inliers better than F_gt does by the (smaller) direction margin. An epipole far from the image or
+      at infinity (sideways motion, rectified stereo) is poorly determined: an estimate's being 6-20 deg off says
+      nothing there, and neither does it where the ground truth fits the matches as well as the estimates."""
     if not diag:
         return None
     evidence = diag.get("estimators", {})
@@ -224,20 +269,40 @@ def gt_suspect(diag: dict[str, Any] | None, estimators: list[dict[str, Any]]) ->
     consensus = [n for n in m if m[n]["inlier_ratio"] >= GT_SUSPECT_INLIER_RATIO]
     if not consensus:
         return None
+
+    def residuals(n: str) -> tuple[float, float]:
+        """(F_gt's, the estimate's own) median SED on the estimate's inliers (runs before 0.x lack the latter:
+        its median SED on the evaluation points then)."""
+        ev = evidence[n]
+        own = _num(ev.get("sed_median_inliers"))
+        return _num(ev.get("gt_sed_median_inliers")), own if np.isfinite(own) else m[n]["sed_median"]
+
+    def worse(n: str, margin: float) -> bool:
+        gt, own = residuals(n)
+        return gt > GT_SUSPECT_RATIO * own and gt - own > margin  # NaN: False
+
+    margin, direction_margin = _margins(diag)
+    acc = _num(diag.get("gt_accuracy_px"))
+    stated = f"ground truth good to ~{acc:g} px" if np.isfinite(acc) else "ground truth of unstated accuracy"
     ref = max(consensus, key=lambda n: (m[n]["n_inliers"], -m[n]["sed_median"]))
-    ev = evidence[ref]
-    agree, sed = _num(ev.get("gt_agree")), _num(ev.get("gt_sed_median_inliers"))
-    if agree < GT_AGREE_MIN or sed > EVAL_THRESHOLD_PX:
+    if worse(ref, margin):
+        gt, own = residuals(ref)
+        agree = _num(evidence[ref].get("gt_agree"))
         return {"reference": ref, "why": f"{ref}'s inliers ({m[ref]['inlier_ratio']:.0%} of the matches, the "
-                f"largest consensus) sit off F_gt: {agree:.0%} of them within {EVAL_THRESHOLD_PX:g} px of its lines "
-                f"(median {sed:.2f} px)"}
+                f"largest consensus) sit off F_gt: median {gt:.2f} px from its lines against {own:.2f} px from "
+                f"{ref}'s, {agree:.0%} within {EVAL_THRESHOLD_PX:g} px (margin {margin:g} px: {stated})"}
     tight = [n for n in consensus if m[n]["sed_median"] < GT_SUSPECT_FIT_PX]
-    if not tight or ill_conditioned(diag, ev):
+    far = _num(diag.get("gt_epipole_distance"))
+    if not tight or ill_conditioned(diag, evidence[ref]) or far > GT_SUSPECT_EPIPOLE_NEAR:  # NaN (older runs): judged
         return None
-    if all(m[n]["epipole_err_deg"] > GT_SUSPECT_DIRECTION_DEG or m[n]["rot_err_deg"] > GT_SUSPECT_ROTATION_DEG for n in tight):
+    if all((m[n]["epipole_err_deg"] > GT_SUSPECT_DIRECTION_DEG or m[n]["rot_err_deg"] > GT_SUSPECT_ROTATION_DEG)
+           and worse(n, direction_margin) for n in tight):
         best = max(tight, key=lambda n: m[n]["n_inliers"])
-        return {"reference": best, "why": "every tight fit disagrees with the ground truth: " + "; ".join(
-            f"{n} epipole {m[n]['epipole_err_deg']:.1f} deg, rotation {m[n]['rot_err_deg']:.2f} deg off" for n in tight)}
+        return {"reference": best, "why": "every tight fit disagrees with the ground truth and fits the matches "
+                "better: " + "; ".join(f"{n} epipole {m[n]['epipole_err_deg']:.1f} deg, rotation "
+                                       f"{m[n]['rot_err_deg']:.2f} deg off, its inliers {residuals(n)[0]:.2f} px from "
+                                       f"F_gt's lines against {residuals(n)[1]:.2f} px from its own" for n in tight)
+                + f" (margin {direction_margin:g} px: {stated})"}
     return None
 
 

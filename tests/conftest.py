@@ -41,6 +41,23 @@ def kitti_root() -> Path:
     return root
 
 
+def _strecha_root() -> Path:
+    return Path(os.environ.get("FVIZ_STRECHA_ROOT", PROJECT.parent / "shared" / "data" / "strecha"))
+
+
+@pytest.fixture(scope="session")
+def strecha_root() -> Path:
+    """The Strecha fountain-P11 sample (``$FVIZ_STRECHA_ROOT``, default ``../shared/data/strecha``): skipped when
+    missing locally, a failure in CI."""
+    root = _strecha_root()
+    if not (root / "fountain-P11" / "pairs_with_gt.txt").is_file():
+        msg = f"Strecha sample data missing at {root} (set FVIZ_STRECHA_ROOT)"
+        if os.environ.get("CI", "").lower() == "true":
+            pytest.fail(msg)
+        pytest.skip(msg)
+    return root
+
+
 @pytest.fixture(scope="session")
 def odometry(kitti_root):
     from fviz.data.kitti import open_dataset

@@ -9,7 +9,7 @@ from cli_util import assert_one_line_error, run_fviz
 from typer.testing import CliRunner
 
 from fviz.cli import app
-from fviz.compare import EXACT_MAX_N, TIE_REL, Side, compare, wilcoxon_signed_rank
+from fviz.compare import EXACT_MAX_N, TIE_REL, Side, compare, summary_rows, wilcoxon_signed_rank
 
 pytestmark = pytest.mark.kitti
 
@@ -196,3 +196,55 @@ def test_wilcoxon_normal_approximation_matches_its_closed_form():
     assert (w.method, w.w_plus) == ("normal", w_plus)
     assert w.p == pytest.approx(math.erfc(z / math.sqrt(2)))
     assert wilcoxon_signed_rank([0.0, 0.0]).method == "none"
+
+
+def test_each_metric_fails_by_its_own_rule_named_in_the_table(runs):
+    """Issue 28 §2: one threshold (2.0) for every metric said "both fail 49/49" of inlier ratios and never failed NSGD.
+    Each metric now has its own rule (fviz.verdicts), named wherever fails are counted; "failed" (no value, eval's
+    count) stays apart from "fails" (the metric's verdict)."""
+    from fviz import triage
+    from fviz.verdicts import FAIL_RULES, fails_label
+
+    a, b = runs
+    for metric, label, thr, hb in (("sed_median", "sed_median > 2 px", 2.0, False),
+                                   ("inlier_ratio", "inlier_ratio < 0.5", 0.5, True),
+                                   ("nsgd", "nsgd > 0.05", 0.05, False),
+                                   ("pose_err_deg", "pose_err_deg > 10 deg", 10.0, False)):
+        c = compare(Side(a, "magsac"), Side(b, "magsac"), metric)
+        assert c.fails_label == fails_label(metric) == label
+        va, vb = values(a, "magsac", metric), values(b, "magsac", metric)
+        bad = lambda v, e: bool(e) or not math.isfinite(v) or (v < thr if hb else v > thr)  # noqa: E731
+        assert len(c.both_fail) == sum(bad(*va[n]) and bad(*vb[n]) for n in va)
+        assert len(c.only_a_fails) == sum(bad(*va[n]) and not bad(*vb[n]) for n in va)
+        assert c.a_failed == [n for n in va if va[n][1] or not math.isfinite(va[n][0])]
+        rows = dict(summary_rows(c))
+        assert f"only magsac of a fails ({label})" in rows and f"both fail ({label})" in rows
+        assert rows["magsac of a failed (no value)"] == str(len(c.a_failed))
+    # inlier ratios of a working estimator do not all "fail"; the rule is the triage's low-inliers and matcher blame
+    assert len(compare(Side(a, "magsac"), Side(b, "magsac"), "inlier_ratio").both_fail) < 9
+    assert triage.LOW_INLIER_RATIO == FAIL_RULES["inlier_ratio"].threshold
+    assert triage.FAIL_SED_PX == FAIL_RULES["sed_median"].threshold and triage.FAIL_POSE_DEG == FAIL_RULES["pose_err_deg"].threshold
+    # --fail-threshold still replaces the rule, and says so; a metric without a rule fails only where it has no value
+    r = invoke("compare", "--run-a", a, "--run-b", b, "-e", "magsac", "--metric", "inlier_ratio", "--fail-threshold", "0.99",
+               "--out", a / "strict.md")
+    assert "inlier_ratio < 0.99 (`--fail-threshold`)" in (a / "strict.md").read_text() and "inlier_ratio < 0.99" in r.output
+    assert compare(Side(a, "magsac"), Side(a, "8point"), "epi_abs").fails_label == "no value"
+
+
+def test_the_run_folder_is_given_one_way_everywhere(runs, tmp_path):
+    """`table RUN` and `--out-dir RUN` both work in table, compare and triage (issue 28 §2); two different ones are
+    refused."""
+    a, _ = runs
+    shutil.copytree(a, tmp_path / "run")
+    run = tmp_path / "run"
+    invoke("compare", run, "--a", "magsac", "--b", "8point")
+    assert "magsac better (wins)" in (run / "compare.md").read_text()
+    invoke("table", "--out-dir", run)
+    first = (run / "table.md").read_text()
+    invoke("table", run)
+    assert (run / "table.md").read_text() == first
+    r = invoke("triage", run, "--by", "magsac", "--top", "1", "--no-progress")
+    assert "0 evaluated now" in r.output and (run / "triage.md").is_file()
+    r = run_fviz("compare", run, "--out-dir", a, "--a", "magsac", "--b", "8point")
+    assert_one_line_error(r, 2, f"{run} and --out-dir {a}: two run folders")
+    assert_one_line_error(run_fviz("table"), 2, "table: give the run folder, as RUN or --out-dir RUN")

@@ -75,10 +75,26 @@ for _typer in (app, inspect_app):
         _info.callback = _interruptible(_info.callback)
 
 
+def command_hint(argv: list[str]) -> str | None:
+    """A one-line error for a command line click would answer with "No such option": ``fviz inspect --kitti-root ...``
+    (the subcommand ``pair`` forgotten) gets "did you mean `fviz inspect pair ...`"."""
+    import shlex
+
+    args = [a for a in argv if a != "--debug"]
+    if len(args) >= 2 and args[0] == "inspect" and args[1].startswith("-") and args[1] not in ("--help", "-h"):
+        flag = args[1].split("=", 1)[0]
+        return (f"fviz inspect: no such option {flag}: did you mean `fviz inspect pair {shlex.join(args[1:])}`? "
+                "(inspect takes what to inspect first: pair)")
+    return None
+
+
 def main() -> None:
     from fviz.errors import FvizError, Interrupted
     from fviz.prestart import prestart, take
 
+    if (hint := command_hint(sys.argv[1:])) is not None:
+        print(f"error: {hint}", file=sys.stderr)
+        sys.exit(2)
     prestart(sys.argv[1:])  # eval / triage: workers import while the options are parsed
     try:
         app()

@@ -38,6 +38,9 @@ Full = Annotated[bool, typer.Option("--full", help="Record every pair's images, 
 Progress = Annotated[bool, typer.Option("--progress/--no-progress", help="Progress bar with ETA on stderr.")]
 
 
+DEFAULT_OUT_DIR = Path("runs/eval")
+
+
 def _run_options(
     kitti_root: o.KittiRoot = None,
     sequence: o.Sequence_ = None,
@@ -73,7 +76,7 @@ def _run_options(
     norm: o.Norm = "fbn",
     eval_threshold: o.EvalThreshold = 2.0,
     estimator_timeout: o.EstimatorTimeout = 600.0,
-    out_dir: OutDir = Path("runs/eval"),
+    out_dir: OutDir = DEFAULT_OUT_DIR,
     workers: Workers = None,
     shard: Shard = None,
     full: Full = False,
@@ -225,6 +228,22 @@ def print_outcome(outcome, what: str = "eval") -> None:
         raise typer.Exit(130)
 
 
+def print_failures(out_dir: Path) -> None:
+    """The run's failures grouped by cause (summary.json's ``failures``), one line each, on stderr."""
+    import json
+
+    from fviz.failures import failure_lines
+    from fviz.run.config import SUMMARY_JSON
+
+    path = Path(out_dir) / SUMMARY_JSON
+    try:
+        doc = json.loads(path.read_text()).get("failures")
+    except (OSError, ValueError):
+        return
+    for line in failure_lines(doc):
+        print(line, file=sys.stderr)
+
+
 def cpu_cores() -> int:
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
 
@@ -262,7 +281,7 @@ def print_figures(out_dir: Path) -> None:
     fmt = lambda v: "n/a" if v is None else f"{v:.3g}"  # noqa: E731
     t = Table(title=f"{doc['selection']}: {doc['pairs']} pairs")
     first = next(iter(doc["estimators"].values()), {"pose_auc": {}})
-    for c in ["estimator", *(f"AUC@{k}°" for k in first["pose_auc"]), "NSGD recall", "med SED px", "med Sampson px", "failed"]:
+    for c in ["estimator", *(f"AUC@{k}°" for k in first["pose_auc"]), "NSGD recall", "med SED px", "med Sampson px", "failed (no F)"]:
         t.add_column(c, justify="left" if c == "estimator" else "right")
     for name, f in doc["estimators"].items():
         t.add_row(name + (" (oracle)" if f["oracle"] else ""), *(fmt(v) for v in f["pose_auc"].values()),
@@ -286,6 +305,7 @@ def eval_(args: RunArgs, resume: Resume = False) -> None:
     outcome = run_eval(config, args.out_dir, worker_count(args.workers), resume, args.progress)
     print_figures(args.out_dir)
     print_outcome(outcome)
+    print_failures(args.out_dir)
 
 
 def merge(

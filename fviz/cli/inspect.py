@@ -17,6 +17,15 @@ def load_pair(kitti_root, sequence, drive, frame, pair_kind, step, cams, synthet
     """The selected pair: a user's (two images, a pairs file, a COLMAP model: ``user`` holds those flags),
     KITTI or synthetic; with the user's matches and ground-truth correspondences attached."""
     user = user or {}
+    if any(user.get(k) is not None for k in ("image_a", "image_b", "pairs", "colmap")):  # before any image is read
+        from fviz.errors import FvizError
+        from fviz.run.config import user_source_conflict
+
+        kitti = {"--kitti-root": kitti_root, "--sequence": sequence, "--drive": drive, "--cams": cams,
+                 "--synthetic": synthetic or None}
+        given = [flag for flag, v in kitti.items() if v is not None]
+        if given:
+            raise FvizError(f"{given[0]}: {user_source_conflict(user.get('pairs'), user.get('colmap'))}")
     p = _user_pair(user, frame)
     if p is None:
         p = _kitti_or_synthetic(kitti_root, sequence, drive, frame, pair_kind, step, cams, synthetic, seed)

@@ -3,11 +3,15 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Optional
 
 import typer
 
 
-def table(run_dir: Path = typer.Argument(..., help="An fviz eval --out-dir (with metrics.csv and run.json).")) -> None:
+def table(run_dir: Optional[Path] = typer.Argument(None, metavar="RUN", help="An fviz eval --out-dir (with metrics.csv and run.json).",
+                                                   show_default=False),
+          out_dir: Optional[Path] = typer.Option(None, "--out-dir", help="The run folder, as eval / triage / compare take it "
+                                                                         "(the same as RUN).")) -> None:
     """The paper's Table 1 from an eval run: table.md and table.csv.
 
     Rows: network variants (one per architecture and head; the norm a checkpoint was trained with picks its
@@ -18,8 +22,13 @@ def table(run_dir: Path = typer.Argument(..., help="An fviz eval --out-dir (with
     Example: fviz eval --synthetic --seeds 0:500 -e 8point -e lmeds -e ransac -e deep:runs/a/model.pt ...
     --out-dir runs/t && fviz table runs/t
     """
+    from fviz.cli.triage import one_run_folder
+    from fviz.errors import FvizError
     from fviz.table import write_table
 
+    run_dir = one_run_folder(run_dir, out_dir)
+    if run_dir is None:
+        raise FvizError("table: give the run folder, as RUN or --out-dir RUN")
     md, csv_path = write_table(run_dir)
     print(md.read_text(), end="")
     print(f"written: {md} {csv_path}")

@@ -12,24 +12,37 @@ from typing import Annotated, Optional
 import typer
 
 from fviz.cli import options as o
-from fviz.cli.eval import RunArgs, print_outcome, run_command
+from fviz.cli.eval import DEFAULT_OUT_DIR, RunArgs, print_outcome, run_command
+from fviz.errors import FvizError
 
 By = Annotated[Optional[str], typer.Option("--by", help="Estimator whose metric ranks the pairs (default: the first estimator named).")]
 Metric = Annotated[str, typer.Option("--metric", help="Metric to rank by (worst first), e.g. sed_median, pose_err_deg, nsgd, inlier_ratio.")]
 Top = Annotated[int, typer.Option("--top", help="Pairs listed in triage.md and recorded in triage.rrd.")]
+RunDir = Annotated[Optional[Path], typer.Argument(metavar="RUN", help="The run folder (the same as --out-dir RUN; as in `fviz table RUN`).",
+                                                  show_default=False)]
 
 
-def triage(args: RunArgs, by: By = None, metric: Metric = "sed_median", top: Top = 20) -> None:
+def one_run_folder(positional: Path | None, out_dir: Path | None, default: Path | None = None) -> Path | None:
+    """The run folder given as RUN or as --out-dir RUN (either way, as every command takes it); both must agree."""
+    if positional is None:
+        return out_dir
+    if out_dir is not None and out_dir != default and Path(out_dir).absolute() != Path(positional).absolute():
+        raise FvizError(f"{positional} and --out-dir {out_dir}: two run folders; give the run once (RUN or --out-dir RUN)")
+    return positional
+
+
+def triage(args: RunArgs, run: RunDir = None, by: By = None, metric: Metric = "sed_median", top: Top = 20) -> None:
     """Findings per estimator (ignores-input, worse-than-baseline), then pairs ranked by a metric of one estimator,
     worst first, with likely causes; writes triage.md and triage.rrd.
 
     Runs eval first with resume semantics: a finished run in --out-dir is reused (its estimators kept, only missing
     pairs or estimators computed). Without selection flags, the run in --out-dir is triaged as it was configured.
     """
-    from fviz.cli.eval import _default_estimators, print_figures, worker_count
+    from fviz.cli.eval import _default_estimators, print_failures, print_figures, worker_count
     from fviz.run.store import locked
     from fviz.triage import run_triage
 
+    args.values["out_dir"] = one_run_folder(run, args.out_dir, DEFAULT_OUT_DIR)
     o.check_out_dir(args.out_dir)
     config = args.config(_default_estimators())  # before the lock, which creates --out-dir: "no such folder" stays true
     with locked(args.out_dir):  # eval inside and triage's own reports: one run owns the folder
@@ -38,6 +51,7 @@ def triage(args: RunArgs, by: By = None, metric: Metric = "sed_median", top: Top
     print_outcome(result.eval, "triage")
     _print_findings(result)
     _print_ranking(result, metric, top)
+    print_failures(args.out_dir)
 
 
 def _print_findings(result) -> None:
@@ -61,6 +75,7 @@ def _print_ranking(result, metric: str, top: int) -> None:
 
 
 def compare(
+    run: RunDir = None,
     a: Annotated[Optional[str], typer.Option("--a", help="Estimator a (with --out-dir).")] = None,
     b: Annotated[Optional[str], typer.Option("--b", help="Estimator b (with --out-dir).")] = None,
     out_dir: Annotated[Optional[Path], typer.Option("--out-dir", help="Run folder holding both estimators; compare.md goes here.")] = None,
@@ -68,8 +83,10 @@ def compare(
     run_b: Annotated[Optional[Path], typer.Option("--run-b", help="Run folder b.")] = None,
     estimator: Annotated[Optional[str], typer.Option("--estimator", "-e", help="The estimator compared across --run-a / --run-b.")] = None,
     metric: Annotated[str, typer.Option("--metric", help="Metric compared pair by pair, e.g. sed_median, pose_err_deg, nsgd, inlier_ratio.")] = "sed_median",
-    fail_threshold: Annotated[float, typer.Option("--fail-threshold", help="A metric worse than this is a failure (px for sed_median).",
-                                                  callback=o.checked("--fail-threshold", math.isfinite, "must be a number"))] = 2.0,
+    fail_threshold: Annotated[Optional[float], typer.Option(
+        "--fail-threshold", help="A metric worse than this fails the pair (default: the metric's own threshold: "
+        "sed/sampson > 2 px, pose/rotation/translation/epipole errors > 10 deg, nsgd > 0.05, inlier ratios < 0.5).",
+        callback=o.checked("--fail-threshold", lambda v: v is None or math.isfinite(v), "must be a number"))] = None,
     tie: Annotated[float, typer.Option("--tie", help="Differences up to this (in the metric's unit) are ties.",
                                        callback=o.checked("--tie", lambda v: math.isfinite(v) and v >= 0, "must be a number >= 0"))] = 0.0,
     tie_rel: Annotated[float, typer.Option("--tie-rel", help="Differences up to this fraction of the larger value are ties (0: none).",
@@ -80,8 +97,7 @@ def compare(
     """Wins, losses and ties of estimator a against b pair by pair, Wilcoxon's signed-rank test of the differences,
     the pairs where only one of them fails, and every pair's difference (compare.md)."""
     from fviz.compare import COMPARE_FILE, Side, compare as run_compare, write_compare
-    from fviz.errors import FvizError
-
+    out_dir = one_run_folder(run, out_dir)
     if run_a or run_b:
         if not (run_a and run_b and estimator) or a or b:
             raise FvizError("compare: give --run-a D1 --run-b D2 --estimator NAME, or --out-dir D --a NAME --b NAME")

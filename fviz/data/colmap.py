@@ -155,6 +155,17 @@ def covisible_pairs(rec, min_shared: int) -> list[tuple[int, int]]:
     return sorted(k for k, n in shared.items() if n >= min_shared)
 
 
+_noted: set[str] = set()
+
+
+def _note_once(message: str) -> None:
+    import sys
+
+    if message not in _noted:
+        _noted.add(message)
+        print(message, file=sys.stderr)
+
+
 class ColmapSource:
     """The pairs of a COLMAP model (see the module doc), with ``pair_ids``, ``load``, ``ground_truth``."""
 
@@ -181,7 +192,14 @@ class ColmapSource:
                 out.append((self.by_name[p.name0].image_id, self.by_name[p.name1].image_id))
             return out
         if len(rec.points3D) == 0:
-            return list(combinations(sorted(self.views), 2))
+            out = list(combinations(sorted(self.views), 2))
+            from fviz.data.sources import COLMAP_MIN_SHARED
+
+            if min_shared != COLMAP_MIN_SHARED:  # given (the default says nothing): it is ignored, and said so
+                _note_once(f"note: --colmap {self.model} has no 3D points (points3D is empty): all {len(out)} pairs of its "
+                           f"{len(self.views)} images are taken and --min-shared {min_shared} does not apply "
+                           "(select pairs with --pairs FILE or --frames A:B)")
+            return out
         out = [(a, b) for a, b in covisible_pairs(rec, min_shared) if a in self.views and b in self.views]
         if not out:
             raise FvizError(f"--colmap {self.model}: no two images share {min_shared} 3D points (lower --min-shared)")
@@ -215,7 +233,8 @@ class ColmapSource:
     def load(self, pid: PairId) -> Pair:
         va, vb, T_ab = self._motion(pid)
         return make_pair(pid, self.images / va.name, self.images / vb.name, va.K, vb.K, T_ab, None,
-                         what=f"--colmap {self.model}: images {va.name}, {vb.name}")
+                         what=f"--colmap {self.model}: images {va.name}, {vb.name}",
+                         what_K=(f"--colmap {self.model}: camera of {va.name}", f"--colmap {self.model}: camera of {vb.name}"))
 
     def ground_truth(self, pid: PairId) -> np.ndarray:
         va, vb, T = self._motion(pid)

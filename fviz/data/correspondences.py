@@ -17,7 +17,8 @@ fviz's convention (OpenCV: origin at the centre of the top-left pixel).
   optional ``scores`` (M,), or ``matches`` (M, 4 or 5).
 
 ``--gt-matches``: text rows ``x_a y_a x_b y_b``, or AdelaideRMF / kusvod2 ``x1 y1 1 x2 y2 1 label`` (label 0
-= outlier, left out); one file, or a folder of ``{stem0}_{stem1}.txt``. Coordinates are taken in OpenCV's
+= outlier, left out); one file, or a folder of ``{stem0}_{stem1}.txt`` (either order), or kusvod2's ``{name}_pts.txt``
+for images ``{name}A``, ``{name}B``. Coordinates are taken in OpenCV's
 convention (subtract 1 from MATLAB's 1-based pixels first).
 
 A bad file is one line naming the file and the line (or the HDF5 dataset).
@@ -25,6 +26,7 @@ A bad file is one line naming the file and the line (or the HDF5 dataset).
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -106,15 +108,19 @@ def small_extent_note(c: Correspondences, pair) -> str | None:
 
 
 def _pair_file(folder: Path, pair, pattern: str, what: str) -> Path:
-    """The per-pair file of a folder: ``pattern`` formatted with the images' stems."""
+    """The per-pair file of a folder: ``pattern`` formatted with the images' stems (either order); for text files
+    also kusvod2's ``{name}_pts.txt`` (and ``{name}.txt``) where the stems are ``{name}`` plus a suffix (A/B, 1/2)."""
     stems = [Path(n).stem for n in image_names(pair)]
-    path = folder / pattern.format(stem0=stems[0], stem1=stems[1])
-    if path.is_file():
-        return path
-    swapped = folder / pattern.format(stem0=stems[1], stem1=stems[0])
-    if swapped.is_file():
-        return swapped
-    raise FvizError(f"{what} {folder}: no {path.name} for the pair {pair.id.name}")
+    names = [pattern.format(stem0=stems[0], stem1=stems[1]), pattern.format(stem0=stems[1], stem1=stems[0])]
+    common = os.path.commonprefix(stems).rstrip("_-. ")
+    if pattern.endswith(".txt") and common and common not in stems:
+        names += [f"{common}_pts.txt", f"{common}.txt"]
+    for name in dict.fromkeys(names):
+        if (folder / name).is_file():
+            return folder / name
+    others = [n for n in dict.fromkeys(names) if n != names[0]]
+    nor = f" (nor {', '.join(others)})" if others else ""
+    raise FvizError(f"{what} {folder}: no {names[0]} for the pair {pair.id.name}{nor}")
 
 
 def image_names(pair) -> tuple[str, str]:

@@ -142,8 +142,14 @@ def rotated(image: np.ndarray, K: np.ndarray | None, k: int) -> tuple[np.ndarray
 
 
 def make_pair(pid: PairId, path_a: Path, path_b: Path, K_a=None, K_b=None, T_ab=None, F_gt=None,
-              rot: tuple[int, int] = (0, 0), gt_accuracy_px: float | None = None, what: str = "pair") -> Pair:
-    """Read both images and build the Pair; ``rot`` turns them (and their cameras and F) as SuperGlue does."""
+              rot: tuple[int, int] = (0, 0), gt_accuracy_px: float | None = None, what: str = "pair",
+              what_K: tuple[str, str] | None = None, what_images: str | None = None) -> Pair:
+    """Read both images and build the Pair; ``rot`` turns them (and their cameras and F) as SuperGlue does.
+    ``what_K``: where each K came from (a flag, a file's line), named when its principal point lies outside its image.
+    The same file twice is refused; two files with identical pixels get a note."""
+    if Path(path_a).resolve() == Path(path_b).resolve():
+        raise FvizError(f"{what_images or what}: image a and image b are the same file {path_a}: every F through the points fits two "
+                        "copies of one image (residuals ~0, 100 % inliers say nothing); give two different images")
     image_a, image_b = read_user_image(path_a, "image a"), read_user_image(path_b, "image b")
     gt = ground_truth(K_a, K_b, T_ab, F_gt, what)
     notes = []
@@ -159,12 +165,16 @@ def make_pair(pid: PairId, path_a: Path, path_b: Path, K_a=None, K_b=None, T_ab=
         if gt["F_gt"] is not None:
             gt["F_gt"] = normalize(np.linalg.inv(A_b).T @ gt["F_gt"] @ np.linalg.inv(A_a), "fbn")
         notes.append(f"images turned by rot {rot[0]}, {rot[1]} (quarter turns counter-clockwise) as the pairs file says")
-    for v, K, im in (("a", gt["K_a"], image_a), ("b", gt["K_b"], image_b)):
+    for i, (v, K, im) in enumerate((("a", gt["K_a"], image_a), ("b", gt["K_b"], image_b))):
         if K is not None:
             h, w = im.shape[:2]
-            if not (-0.5 * w <= K[0, 2] <= 1.5 * w and -0.5 * h <= K[1, 2] <= 1.5 * h):
-                notes.append(f"the principal point of image {v} ({K[0, 2]:.0f}, {K[1, 2]:.0f}) lies far from the "
-                             f"{w}x{h} image: is K at this image's resolution?")
+            if not (-0.5 <= K[0, 2] <= w - 0.5 and -0.5 <= K[1, 2] <= h - 0.5):
+                flag = what_K[i] if what_K else f"{what}: K of image {v}"
+                raise FvizError(f"{flag}: principal point ({K[0, 2]:.1f}, {K[1, 2]:.1f}) lies outside the {w}x{h} image "
+                                f"{v}: is K for this image's resolution (a resized image with the full-size K)?")
+    if image_a.shape == image_b.shape and np.array_equal(image_a, image_b):
+        notes.append("image a and image b have identical pixels: any F through the points fits them, so near-zero "
+                     "residuals and 100 % inliers say nothing")
     return Pair(id=pid, image_a=image_a, image_b=image_b, gt_accuracy_px=gt_accuracy_px, notes=notes,
                 extra={"path_a": str(path_a), "path_b": str(path_b)}, **gt)
 
@@ -183,4 +193,4 @@ def two_images(image_a: str, image_b: str, K: str | None = None, K_a: str | None
     if pa.name == pb.name:
         pid = PairId("images", "", "pair", 0, 1, root="", image_a=str(pa), image_b=str(pb))
     return make_pair(pid, pa, pb, Ka, Kb, parse_T(T_ab) if T_ab else None, parse_F(F_gt) if F_gt else None,
-                     what="--T-ab/--F-gt")
+                     what="--T-ab/--F-gt", what_K=("--K", "--K") if K else ("--K-a", "--K-b"), what_images="--image-a/--image-b")

@@ -100,6 +100,7 @@ class PairsSource:
 
     def __init__(self, pairs: str | Path, images: str | Path | None, frames: tuple[int | None, int | None] = (None, None)):
         self.path = Path(pairs)
+        self.images_given = images is not None
         self.images = Path(images) if images is not None else self.path.parent
         if not self.images.is_dir():
             raise FvizError(f"--images {self.images}: not a folder")
@@ -132,7 +133,14 @@ class PairsSource:
     def load(self, pid: PairId) -> Pair:
         p = self.lines[pid.frame_a]
         where = f"{self.path}:{p.line}"
-        return make_pair(pid, self.images / p.name0, self.images / p.name1, p.K0, p.K1, p.T, None, p.rot, what=where)
+        try:
+            return make_pair(pid, self.images / p.name0, self.images / p.name1, p.K0, p.K1, p.T, None, p.rot, what=where,
+                             what_K=(f"{where}: K0", f"{where}: K1"))
+        except FvizError as exc:
+            if self.images_given or not str(exc).endswith("no such file"):
+                raise
+            raise FvizError(f"{exc} (the names in --pairs {self.path} are relative to --images DIR, by default the pairs "
+                            f"file's folder: give --images)") from None
 
     def ground_truth(self, pid: PairId) -> np.ndarray | None:
         from fviz.data.images import ground_truth

@@ -69,6 +69,14 @@ PAPER_COLUMNS = tuple(f"epi_{m}_{n}" for n in PAPER_NORMS for m in ("abs", "sqr"
 # ------------------------------------------------------------------------------------ selection
 
 
+def user_source_conflict(pairs, colmap) -> str:
+    """Why a KITTI or synthetic flag goes with a user's source (it would be ignored): the rest of a one-line error."""
+    if pairs is None and colmap is None:
+        return ("not with --image-a/--image-b (the two images are the pair; the flag would be ignored): "
+                "give one source")
+    return "not with --pairs / --colmap (their pairs are listed; select lines with --frames A:B)"
+
+
 @dataclass(frozen=True)
 class Selection:
     """Which pairs: a KITTI sequence/drive (kinds x steps over a frame range) or synthetic seeds.
@@ -121,7 +129,7 @@ class Selection:
                       "--step": self.steps != (1,) or None, "--pair": self.kinds != ("stereo",) or None}
             given = [flag for flag, v in others.items() if v is not None]
             if given:
-                raise FvizError(f"{given[0]}: not with --pairs / --colmap (their pairs are listed; select lines with --frames A:B)")
+                raise FvizError(f"{given[0]}: {user_source_conflict(self.pairs, self.colmap)}")
             return
         for kind in self.kinds:
             if kind not in PAIR_KINDS:

@@ -16,6 +16,7 @@ import numpy as np
 from fviz.atomic import WriteError, replacing, write_text
 from fviz.data.pair import PairId
 from fviz.errors import FvizError, Interrupted
+from fviz.failures import Failures, failure_markdown
 from fviz.evaluate import GT_NAME, PairResult
 from fviz.run.config import (
     CSV_FILE, INT_COLUMNS, PAPER_COLUMNS, PAPER_NORMS, PARQUET_FILE, PERCENTILES, RESULTS_FILE, RRD_FILE,
@@ -78,6 +79,7 @@ class _Stats:
         self.ground_truth: set[str] = set()  # what the pairs' ground truth is (pose, F, correspondences, none)
         self.precision: dict[str, array] = {}  # match precision per pair (fviz.geometry.precision)
         self.oracle_choice: dict[str, dict[str, int]] = {}  # sweep oracle -> {the grid entry it chose: pairs}
+        self.failures = Failures()  # pair and estimator failures grouped by cause (fviz.failures)
 
     @property
     def known(self) -> dict[str, bool]:
@@ -85,6 +87,7 @@ class _Stats:
 
     def add(self, rec: dict[str, Any], rows: list[dict[str, Any]]) -> None:
         self.pairs += 1
+        self.failures.add(rec)
         self.ground_truth.update(row["ground_truth"] for row in rows[:1] if row.get("ground_truth"))
         self.pair_errors += rec["error"] is not None
         for key, v in ((rec.get("result") or {}).get("match_precision") or {}).items():
@@ -217,6 +220,7 @@ def summary_markdown(config: RunConfig, stats: _Stats) -> str:
         f"EPI-ABS / EPI-SQR (`epi_abs`, `epi_sqr`) are per-pair **means** over the evaluation matches, on F normalized by "
         f"**{config.norm.upper()}**; distances in px. Statistics below are over the pairs where the estimator succeeded.",
         "",
+        *failure_markdown(stats.failures.document()),
         "## Standard figures",
         "",
         *figures_markdown(standard_figures(stats.per_pair, ests, stats.known)),
@@ -381,7 +385,7 @@ def figures_markdown(figures: dict[str, dict[str, Any]]) -> list[str]:
     aucs = next(iter(figures.values()), {}).get("pose_auc", {})
     lines = [
         "| estimator | " + " | ".join(f"AUC@{t}°" for t in aucs) + f" | NSGD recall (<{NSGD_RECALL_THRESHOLD:g}) | "
-        "median SED px | median Sampson px | failed |",
+        "median SED px | median Sampson px | failed (no F) |",
         "|---|" + "---|" * (len(aucs) + 4),
     ]
     for est, f in figures.items():
@@ -408,6 +412,7 @@ def summary_document(config: RunConfig, stats: _Stats) -> dict[str, Any]:
     return {
         "selection": config.selection.describe(), "pairs": stats.pairs, "pairs_failed": stats.pair_errors,
         "norm": config.norm, "eval_threshold_px": config.eval_threshold,
+        "failures": stats.failures.document(),
         "estimators": {e: {k: ({kk: clean(vv) for kk, vv in v.items()} if isinstance(v, dict) else clean(v))
                            for k, v in f.items()} for e, f in figures.items()},
         "seconds": {e: {k: clean(v) for k, v in t.items()} for e, t in time_table(stats, ests).items()},
