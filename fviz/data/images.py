@@ -141,6 +141,15 @@ def make_pair(pid: PairId, path_a: Path, path_b: Path, K_a=None, K_b=None, T_ab=
               rot: tuple[int, int] = (0, 0), gt_accuracy_px: float | None = None, what: str = "pair") -> Pair:
     """Read both images and build the Pair; ``rot`` turns them (and their cameras and F) as SuperGlue does."""
     image_a, image_b = read_user_image(path_a, "image a"), read_user_image(path_b, "image b")
+    return pair_of_arrays(pid, image_a, image_b, K_a, K_b, T_ab, F_gt, rot, gt_accuracy_px, what,
+                          extra={"path_a": str(path_a), "path_b": str(path_b)})
+
+
+def pair_of_arrays(pid: PairId, image_a: np.ndarray, image_b: np.ndarray, K_a=None, K_b=None, T_ab=None, F_gt=None,
+                   rot: tuple[int, int] = (0, 0), gt_accuracy_px: float | None = None, what: str = "pair",
+                   extra: dict | None = None) -> Pair:
+    """The Pair of two decoded images (uint8, (H, W) or (H, W, 3) RGB) and what is known of their geometry
+    (see :func:`ground_truth`); ``rot`` turns them (and their cameras and F) as SuperGlue does."""
     gt = ground_truth(K_a, K_b, T_ab, F_gt, what)
     notes = []
     if image_a.ndim != image_b.ndim:
@@ -162,7 +171,7 @@ def make_pair(pid: PairId, path_a: Path, path_b: Path, K_a=None, K_b=None, T_ab=
                 notes.append(f"the principal point of image {v} ({K[0, 2]:.0f}, {K[1, 2]:.0f}) lies far from the "
                              f"{w}x{h} image: is K at this image's resolution?")
     return Pair(id=pid, image_a=image_a, image_b=image_b, gt_accuracy_px=gt_accuracy_px, notes=notes,
-                extra={"path_a": str(path_a), "path_b": str(path_b)}, **gt)
+                extra=dict(extra or {}), **gt)
 
 
 def two_images(image_a: str, image_b: str, K: str | None = None, K_a: str | None = None, K_b: str | None = None,
