@@ -3,13 +3,13 @@
 The public Python API (:mod:`fviz.api`), imported on first use so that ``import fviz`` stays instant::
 
     fviz.load_pair, fviz.pair_from_images  ->  fviz.Pair
-    fviz.evaluate                          ->  fviz.PairResult
+    fviz.inspect_pair                      ->  fviz.PairResult
     fviz.log_result, fviz.save_recording, fviz.log_training_step
 """
 
 __version__ = "0.1.0"
 
-__all__ = ["Pair", "PairResult", "load_pair", "pair_from_images", "evaluate", "log_result", "save_recording",
+__all__ = ["Pair", "PairResult", "load_pair", "pair_from_images", "inspect_pair", "log_result", "save_recording",
            "log_training_step"]
 
 

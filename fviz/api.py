@@ -5,7 +5,7 @@ Every name here is re-exported by ``import fviz`` (lazily: ``import fviz`` stays
     import fviz, rerun as rr
 
     pair = fviz.pair_from_images(img_a, img_b, K=K, F_gt=F_true)         # or fviz.load_pair(kitti_root, ...)
-    result = fviz.evaluate(pair, estimators=("magsac",), F={"mine": F})  # a PairResult (= inspect --json)
+    result = fviz.inspect_pair(pair, ("magsac",), F={"mine": F})      # a PairResult (= inspect --json)
     fviz.save_recording("pair.rrd", pair, result)                        # or fviz.log_result(rec, pair, result)
 
     rec = rr.RecordingStream("my-training")                              # a training loop, every N steps:
@@ -34,7 +34,7 @@ if TYPE_CHECKING:  # pragma: no cover
 
     from fviz.evaluate import PairResult
 
-__all__ = ["Pair", "PairResult", "load_pair", "pair_from_images", "evaluate", "log_result", "save_recording",
+__all__ = ["Pair", "PairResult", "load_pair", "pair_from_images", "inspect_pair", "log_result", "save_recording",
            "log_training_step"]
 
 KITTI_ROOT_ENV = "FVIZ_KITTI_ROOT"
@@ -255,7 +255,7 @@ def pair_from_images(
 # ---------------------------------------------------------------------------------------------- evaluation
 
 
-def evaluate(
+def inspect_pair(
     pair: Pair,
     estimators: Sequence[str | tuple[str, Any]] = DEFAULT_ESTIMATORS,
     F: Mapping[str, Any] | None = None,
@@ -272,7 +272,8 @@ def evaluate(
     eval_threshold: float = 2.0,
     timeout: float = 600.0,
 ) -> PairResult:
-    """Run estimators on a pair and score them, and your own F matrices, with the paper's protocol.
+    """Run estimators on a pair and score them, and your own F matrices, with the paper's protocol: what
+    ``fviz inspect pair`` computes (named after it: ``fviz.evaluate`` is the protocol's module).
 
     Args:
         pair: a :class:`Pair` (:func:`load_pair`, :func:`pair_from_images`).
@@ -347,7 +348,7 @@ def log_result(rec: rr.RecordingStream, pair: Pair, result: PairResult, *, lines
     Args:
         rec: a ``rerun.RecordingStream`` you own: saving to an ``.rrd``, connected to a viewer, or shown in a
             notebook (``rec.notebook_show()``); ``rerun.get_global_data_recording()`` for the global one.
-        pair, result: the pair and its :func:`evaluate` result.
+        pair, result: the pair and its :func:`inspect_pair` result.
         lines: epipolar lines drawn per F (a fixed subset of the evaluation matches).
         probe: steps of the ``probe`` timeline (the worst evaluation matches, one per step).
         probe_by: order the probe by this estimator's residual (default: the largest over the estimators).

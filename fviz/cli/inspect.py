@@ -92,9 +92,9 @@ def pair(
                       synthetic=synthetic, seed=seed, image_a=image_a, image_b=image_b, K=K, K_a=K_a, K_b=K_b, T_ab=T_ab,
                       F_gt=F_gt, pairs=pairs, images=images, index=index, colmap=colmap, min_shared=min_shared,
                       matches=matches, gt_matches=gt_matches)
-    result = api.evaluate(p, ests, features=features, max_keypoints=max_keypoints, ratio=ratio, mutual=mutual,
-                          threshold=threshold, confidence=confidence, max_iters=max_iters, seed=seed, norm=norm,
-                          eval_threshold=eval_threshold, timeout=estimator_timeout)
+    result = api.inspect_pair(p, ests, features=features, max_keypoints=max_keypoints, ratio=ratio, mutual=mutual,
+                              threshold=threshold, confidence=confidence, max_iters=max_iters, seed=seed, norm=norm,
+                              eval_threshold=eval_threshold, timeout=estimator_timeout)
     path = api.save_recording(out or default_out(p.id.name), p, result, lines=lines, probe=probe, probe_by=probe_by)
     doc = result.to_dict()
     doc["recording"] = str(path)
