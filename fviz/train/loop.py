@@ -151,6 +151,10 @@ class TrainResult:
     history: list[dict[str, Any]]  # every validation: {"step", "epoch", metrics...}
     losses: list[float] = field(default_factory=list)  # training loss of every step of this run
     seconds: float = 0.0
+    # where the time went (benchmarks/bench_train_record.py): the optimizer steps (batch on the device, forward,
+    # backward, update) and the watched pairs (their forward passes and their logging into train.rrd)
+    step_seconds: float = 0.0
+    watch_seconds: float = 0.0
 
 
 # ----------------------------------------------------------------------------------------------- loss & metrics
@@ -295,6 +299,7 @@ class _Curves:
         # the watched validation pairs (fviz.log_training_step): the pairs, and the network's F on them per frame
         self.pairs: list = []
         self.frames: list[tuple[int, list]] = [(int(s), F) for s, F in (watch or [])]
+        self.watch_seconds = 0.0  # spent on them: forward passes and logging
         path.with_name(path.name + ".part").unlink(missing_ok=True)  # left by fviz versions that streamed into it
 
     def log(self, step: int, values: dict[str, float]) -> None:
@@ -331,8 +336,10 @@ class _Curves:
             if self.pairs:
                 from fviz.api import log_training_step
 
+                t0 = time.perf_counter()
                 for step, F in self.frames:
                     log_training_step(rec, step, self.pairs, F, names, blueprint=False)
+                self.watch_seconds += time.perf_counter() - t0
             rec.flush()
             rec.disconnect()
             os.replace(tmp, self.path)
@@ -530,7 +537,9 @@ def train(
 
     if main and record:
         curves: Any = _Curves(out_dir / "train.rrd", recording_id, curve_state, watch_state)
+        t0 = time.perf_counter()
         curves.pairs, watch_batch = watched_pairs(val_ds, t.watch_pairs, device)
+        curves.watch_seconds += time.perf_counter() - t0
     else:
         watch_batch = None
         curves = _Quiet()
@@ -542,6 +551,7 @@ def train(
     last_checkpoint = [step if resume else -1]
     metrics: dict[str, float] = {k: v for k, v in history[-1].items() if k not in ("step", "epoch")} if history else {}
 
+    step_seconds = 0.0
     pending: list[torch.Tensor] = []  # losses of the steps since the last flush, still on the device
     point_rng = torch.Generator().manual_seed(t.seed * 7919 + step + rank)  # virtual correspondences of sed_loss
     best = [min((h[t.keep_best] for h in history if t.keep_best in h), default=math.inf) if t.keep_best else math.inf]
@@ -596,12 +606,14 @@ def train(
 
     def watch() -> None:
         """The network's F on the watched pairs at this step, for train.rrd (eval mode, as validation)."""
+        t0 = time.perf_counter()
         was_training = model.training
         model.eval()
         with torch.no_grad(), torch.autocast(device.type, dtype=amp_dtype or torch.float32, enabled=amp_dtype is not None):
             F_pred = model(*watch_batch, strict_norm=False)
         model.train(was_training)
         curves.watch(step, F_pred)
+        curves.watch_seconds += time.perf_counter() - t0
 
     def run_validation() -> None:
         nonlocal metrics
@@ -635,6 +647,7 @@ def train(
             train_sampler.batches = batches[batch_in_epoch:]
             net.train()
             for img_a, img_b, F_t in train_loader:
+                t_step = time.perf_counter()
                 img_a = img_a.to(device, non_blocking=True)
                 img_b = img_b.to(device, non_blocking=True)
                 F_t = F_t.to(device, non_blocking=True)
@@ -656,6 +669,7 @@ def train(
                     last_grad[0] = torch.nn.utils.clip_grad_norm_(model.parameters(), t.grad_clip)
                 scaler.step(opt)
                 scaler.update()
+                step_seconds += time.perf_counter() - t_step  # the host's view: on a GPU, kernels may still run
                 step += 1
                 batch_in_epoch += 1
                 bar.advance()
@@ -715,7 +729,8 @@ def train(
             dist.destroy_process_group()
     return TrainResult(
         out_dir=out_dir, checkpoint=ckpt_path, weights=weights, recording=recording, step=step, epoch=epoch,
-        metrics=metrics, history=history, losses=losses, seconds=time.perf_counter() - t_start,
+        metrics=metrics, history=history, losses=losses, seconds=time.perf_counter() - t_start, step_seconds=step_seconds,
+        watch_seconds=getattr(curves, "watch_seconds", 0.0),
     )
 
 
