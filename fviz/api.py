@@ -210,9 +210,13 @@ def pair_from_images(
     """A pair of your two images, with whatever you know of their geometry.
 
     Args:
-        image_a, image_b: file paths, or arrays (H, W) / (H, W, 3) RGB / (3, H, W); uint8, or floats in [0, 1].
-        K: (3, 3) intrinsics of both images; or ``K_a``, ``K_b`` one each. Needed for pose errors.
-        R, t: (3, 3), (3,) the motion from camera a to b (X_b = R X_a + t); with K it gives the ground truth F.
+        image_a: a file path, or an array (H, W) / (H, W, 3) RGB / (3, H, W); uint8, or floats in [0, 1].
+        image_b: the same for the second image.
+        K: (3, 3) intrinsics of both images (or 4 numbers fx, fy, cx, cy). Needed for pose errors.
+        K_a: (3, 3) intrinsics of image a (with ``K_b``), or 4 numbers fx, fy, cx, cy.
+        K_b: (3, 3) intrinsics of image b.
+        R: (3, 3) the rotation from camera a to b (X_b = R X_a + t); with K and t it gives the ground truth F.
+        t: (3,) the translation from camera a to b (any length but 0).
         F_gt: (3, 3) ground-truth F (x_b^T F_gt x_a = 0, pixels), when no pose is known. May be omitted
             altogether: the estimators are then compared with each other.
         name: a label for the pair (its ``id.sequence``).
@@ -283,8 +287,13 @@ def inspect_pair(
         F: your matrices, ``{"mine": F}`` with F (3, 3) in pixels (x_b^T F x_a = 0; numpy or torch). Each becomes
             a row scored exactly as an estimator's (inliers: Sampson distance below ``threshold``).
         features: "sift", "orb" or "akaze" (fviz's own; ignored when the pair carries your matches).
-        max_keypoints, ratio, mutual: detection and matching settings.
-        threshold, confidence, max_iters, seed: robust estimation settings (px, probability, iterations).
+        max_keypoints: keypoints per image.
+        ratio: Lowe's ratio test of the matcher.
+        mutual: keep mutual nearest neighbours only.
+        threshold: inlier threshold of the robust estimators (px); also the inliers of your F (Sampson distance).
+        confidence: robust estimators' confidence.
+        max_iters: robust estimators' iteration cap.
+        seed: robust estimators' random seed.
         norm: the normalization of EPI-ABS / EPI-SQR: "fbn", "abs" or "etr".
         eval_threshold: evaluation matches are within this symmetric epipolar distance of F_gt (px).
         timeout: seconds one estimator may take; past it, it fails (its row holds the error).
@@ -348,7 +357,8 @@ def log_result(rec: rr.RecordingStream, pair: Pair, result: PairResult, *, lines
     Args:
         rec: a ``rerun.RecordingStream`` you own: saving to an ``.rrd``, connected to a viewer, or shown in a
             notebook (``rec.notebook_show()``); ``rerun.get_global_data_recording()`` for the global one.
-        pair, result: the pair and its :func:`inspect_pair` result.
+        pair: the pair.
+        result: its :func:`inspect_pair` result.
         lines: epipolar lines drawn per F (a fixed subset of the evaluation matches).
         probe: steps of the ``probe`` timeline (the worst evaluation matches, one per step).
         probe_by: order the probe by this estimator's residual (default: the largest over the estimators).
@@ -367,7 +377,19 @@ def log_result(rec: rr.RecordingStream, pair: Pair, result: PairResult, *, lines
 def save_recording(path: str | Path, pair: Pair, result: PairResult, *, lines: int = 30, probe: int = 20,
                    probe_by: str | None = None) -> Path:
     """Write the recording ``fviz inspect pair`` writes (``*.rrd``, blueprint stored), atomically: the file
-    appears complete or not at all. Open it with ``rerun PATH`` or ``fviz open PATH``. -> the path."""
+    appears complete or not at all. Open it with ``rerun PATH`` or ``fviz open PATH``.
+
+    Args:
+        path: the ``*.rrd`` file to write (replaced when it exists).
+        pair: the pair.
+        result: its :func:`inspect_pair` result.
+        lines: epipolar lines drawn per F.
+        probe: steps of the ``probe`` timeline.
+        probe_by: order the probe by this estimator's residual (default: the largest over the estimators).
+
+    Returns:
+        The path written.
+    """
     from fviz.atomic import target
     from fviz.record.writer import write_pair_recording
 
@@ -387,8 +409,14 @@ _shown: "weakref.WeakKeyDictionary[Any, set[str]]" = weakref.WeakKeyDictionary()
 
 
 def watch_points(pair: Pair, n: int = WATCH_POINTS, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    """Fixed correspondences of a pair on its ground truth (x_b^T F_gt x_a = 0): the source's exact ones when it
-    has them, else x_a uniform in image a and x_b uniform along F_gt x_a inside image b. -> (n, 2) x 2."""
+    """Fixed correspondences of a pair on its ground truth (x_b^T F_gt x_a = 0), as :func:`log_training_step` draws.
+
+    The source's exact ones when it has them (synthetic scenes), else x_a uniform in image a and x_b uniform along
+    F_gt x_a inside image b; the same for the same pair and ``seed``.
+
+    Returns:
+        (x_a, x_b): (n, 2) pixels each (fewer when F_gt's lines rarely cross image b).
+    """
     if pair.points_a is not None and len(pair.points_a):
         k = np.random.default_rng(seed).permutation(len(pair.points_a))[:n]
         return np.asarray(pair.points_a, float)[k], np.asarray(pair.points_b, float)[k]
