@@ -60,7 +60,7 @@ def load_pair(
     frame: int = 0,
     kind: str = "stereo",
     step: int = 1,
-    cams: tuple[int, int] | str | None = None,
+    cams: tuple[int, int] | None = None,
     synthetic: bool = False,
     seed: int = 0,
     image_a: str | Path | None = None,
@@ -153,15 +153,7 @@ def _kitti_or_synthetic(kitti_root, sequence, drive, frame, kind, step, cams, sy
     root = kitti_root or os.environ.get(KITTI_ROOT_ENV)
     if not root:
         raise FvizError(f"--kitti-root: missing (or set ${KITTI_ROOT_ENV}); use --synthetic for a scene that needs no dataset")
-    if isinstance(cams, str):
-        parts = cams.replace(" ", "").split(",")
-        try:
-            cams = tuple(int(c) for c in parts)
-        except ValueError:
-            raise FvizError(f"--cams {cams!r}: expected two camera numbers, e.g. 0,1") from None
-        if len(cams) != 2:
-            raise FvizError(f"--cams {','.join(parts)!r}: expected two camera numbers, e.g. 0,1")
-    return open_dataset(Path(root), sequence, drive).pair(frame, kind, step, cams)
+    return open_dataset(Path(root), sequence, drive).pair(frame, kind, step, None if cams is None else tuple(cams))
 
 
 def _as_image(image: Any, what: str) -> tuple[np.ndarray, str | None]:
@@ -350,13 +342,23 @@ def _given(F: np.ndarray):
 # ---------------------------------------------------------------------------------------------- recording
 
 
-def log_result(rec: rr.RecordingStream, pair: Pair, result: PairResult, *, lines: int = 30, probe: int = 20,
+def _stream(rec):
+    """``rec``, or (None) the global recording of ``rr.init``; FvizError when there is none."""
+    import rerun as rr
+
+    rec = rec if rec is not None else rr.get_global_data_recording()
+    if not isinstance(rec, rr.RecordingStream):
+        raise FvizError(f"rec: expected a rerun.RecordingStream (or None after rr.init), got {type(rec).__name__}")
+    return rec
+
+
+def log_result(rec: rr.RecordingStream | None, pair: Pair, result: PairResult, *, lines: int = 30, probe: int = 20,
                probe_by: str | None = None, index: int = 0, blueprint: bool = True) -> None:
     """Log an evaluated pair into your Rerun recording, with fviz's layout (:mod:`fviz.record.layout`).
 
     Args:
         rec: a ``rerun.RecordingStream`` you own: saving to an ``.rrd``, connected to a viewer, or shown in a
-            notebook (``rec.notebook_show()``); ``rerun.get_global_data_recording()`` for the global one.
+            notebook (``rec.notebook_show()``); None: the global one of ``rr.init``.
         pair: the pair.
         result: its :func:`inspect_pair` result.
         lines: epipolar lines drawn per F (a fixed subset of the evaluation matches).
@@ -367,6 +369,7 @@ def log_result(rec: rr.RecordingStream, pair: Pair, result: PairResult, *, lines
     """
     from fviz.record.writer import log_pair_recording, pair_blueprint
 
+    rec = _stream(rec)
     if lines < 0 or probe < 0:
         raise FvizError(f"{'lines' if lines < 0 else 'probe'}: must be >= 0")
     log_pair_recording(rec, pair, result, lines, probe, probe_by, index)
@@ -395,9 +398,9 @@ def save_recording(path: str | Path, pair: Pair, result: PairResult, *, lines: i
 
     if lines < 0 or probe < 0:
         raise FvizError(f"{'lines' if lines < 0 else 'probe'}: must be >= 0")
-    if Path(path).suffix != ".rrd":
+    target(Path(path))  # a folder or special file: refused (the writer's one-line error)
+    if Path(path).suffix != ".rrd" and not (Path(path).exists() and not Path(path).is_file()):
         raise FvizError(f"path {path}: a recording is a *.rrd file")
-    target(Path(path))
     return write_pair_recording(path, pair, result, lines, probe, probe_by)
 
 
@@ -430,7 +433,7 @@ def watch_points(pair: Pair, n: int = WATCH_POINTS, seed: int = 0) -> tuple[np.n
     return x_a[ok][:n], x_b[ok][:n]
 
 
-def log_training_step(rec: rr.RecordingStream, step: int, pairs: Sequence[Pair], F_pred: Any,
+def log_training_step(rec: rr.RecordingStream | None, step: int, pairs: Sequence[Pair], F_pred: Any,
                       names: Sequence[str] | None = None, n_points: int = WATCH_POINTS, blueprint: bool = True) -> np.ndarray:
     """Log a network's predictions on a few fixed pairs at ``step``: call it every N steps of any training loop.
 
@@ -441,7 +444,7 @@ def log_training_step(rec: rr.RecordingStream, step: int, pairs: Sequence[Pair],
     The first call on a recording also sends the layout (:func:`fviz.record.layout.training_blueprint`).
 
     Args:
-        rec: your ``rerun.RecordingStream`` (a file, a viewer, a notebook).
+        rec: your ``rerun.RecordingStream`` (a file, a viewer, a notebook); None: the global one of ``rr.init``.
         step: the optimizer step (>= 0).
         pairs: B pairs with ground truth (:func:`pair_from_images` of your validation images and F, or
             :func:`load_pair`); the same pairs, in the same order, at every call.
@@ -459,6 +462,7 @@ def log_training_step(rec: rr.RecordingStream, step: int, pairs: Sequence[Pair],
     from fviz.record import layout as L
     from fviz.record.writer import _epipole_marks, _log_marks, encode_jpeg
 
+    rec = _stream(rec)
     pairs = list(pairs)
     names = [str(i) for i in range(len(pairs))] if names is None else [str(n) for n in names]
     Fs = np.asarray(F_pred.detach().float().cpu() if hasattr(F_pred, "detach") else F_pred, dtype=np.float64)

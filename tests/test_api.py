@@ -164,6 +164,8 @@ def test_log_result_into_the_callers_recording(from_arrays, tmp_path):
     (xy,) = R.column(path, L.matches("gt"), "Points2D:positions")
     assert len(xy) == 2 * result.n_matches
     assert list(R.blueprint_tabs(path)) == ["overview", "mine", "probe"]  # the blueprint was sent
+    with pytest.raises(FvizError, match="rec: expected a rerun.RecordingStream"):
+        fviz.log_result("out.rrd", from_arrays, result)
 
 
 def _synthetic_pairs(n=2):
