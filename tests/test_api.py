@@ -203,6 +203,7 @@ def test_training_steps_show_the_lines_converge(tmp_path):
         fviz.log_training_step(rec, 30, [fviz.pair_from_images(pairs[0].image_a, pairs[0].image_b)], true[:1])
 
 
+@pytest.mark.usefixtures("torch_one_thread")
 def test_fviz_train_watches_validation_pairs(tmp_path):
     import torch
 
@@ -210,7 +211,6 @@ def test_fviz_train_watches_validation_pairs(tmp_path):
     from fviz.train.loop import train, watched_pairs
     from fviz.train.recipe import Recipe
 
-    torch.set_num_threads(1)
     recipe = Recipe.from_dict({
         "model": {"variant": "siamese-rec-pos-fbn", "input_size": [32, 96], "width": 8, "hidden": 16, "pool_grid": [2, 4],
                   "dropout": 0.0},
