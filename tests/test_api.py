@@ -204,7 +204,8 @@ def test_training_steps_show_the_lines_converge(tmp_path):
 
 
 @pytest.mark.usefixtures("torch_one_thread")
-def test_fviz_train_watches_validation_pairs(tmp_path):
+@pytest.mark.parametrize("every, frames", [(0, [0, 2, 4, 6]), (3, [0, 3, 6])])  # at each checkpoint, or every 3 steps
+def test_fviz_train_watches_validation_pairs(tmp_path, every, frames):
     import torch
 
     from fviz.train.checkpoint import read_checkpoint
@@ -216,13 +217,13 @@ def test_fviz_train_watches_validation_pairs(tmp_path):
                   "dropout": 0.0},
         "data": {"source": "synthetic", "train_size": 8, "val_size": 4, "val_points": 32},
         "train": {"batch_size": 4, "lr": 1e-3, "epochs": 5, "max_steps": 6, "num_workers": 0, "out_dir": str(tmp_path / "run"),
-                  "checkpoint_every": 2, "watch_pairs": 3},
+                  "checkpoint_every": 2, "watch_pairs": 3, "watch_every": every},
     })
     res = train(recipe, record=True, held_out=False)
     path = res.recording
     assert {L.watch(str(i), w) for i in range(3) for w in ("a/image", "b/net", "points", "sed_px")} <= set(R.entity_paths(path))
     assert L.watch("3", "sed_px") not in R.entity_paths(path)
-    assert R.column(path, L.watch("0", "sed_px"), "step", "step") == [0, 2, 4, 6]  # the start and each checkpoint
+    assert R.column(path, L.watch("0", "sed_px"), "step", "step") == frames  # the start, then every few steps
     assert "curves" in R.blueprint_tabs(path) and "pair 0" in R.blueprint_tabs(path)
     # the last frame is the trained network's F on those pairs
     from fviz.models.model import FNet
