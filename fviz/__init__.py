@@ -1,3 +1,25 @@
-"""fviz: interactive visual debugging of fundamental-matrix estimation (KITTI, Rerun)."""
+"""fviz: interactive visual debugging of fundamental-matrix estimation (KITTI, Rerun).
+
+The public Python API (:mod:`fviz.api`), imported on first use so that ``import fviz`` stays instant::
+
+    fviz.load_pair, fviz.pair_from_images  ->  fviz.Pair
+    fviz.inspect_pair                      ->  fviz.PairResult
+    fviz.log_result, fviz.save_recording, fviz.log_training_step
+"""
 
 __version__ = "0.1.0"
+
+__all__ = ["Pair", "PairResult", "load_pair", "pair_from_images", "inspect_pair", "log_result", "save_recording",
+           "log_training_step"]
+
+
+def __getattr__(name: str):
+    if name in __all__:
+        from fviz import api
+
+        return getattr(api, name)
+    raise AttributeError(f"module 'fviz' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted([*globals(), *__all__])

@@ -13,73 +13,6 @@ from fviz.cli import options as o
 from fviz.cli.browse import Port, WebBind, WebPort
 
 
-def load_pair(kitti_root, sequence, drive, frame, pair_kind, step, cams, synthetic: bool, seed: int, user: dict | None = None):
-    """The selected pair: a user's (two images, a pairs file, a COLMAP model: ``user`` holds those flags),
-    KITTI or synthetic; with the user's matches and ground-truth correspondences attached."""
-    user = user or {}
-    if any(user.get(k) is not None for k in ("image_a", "image_b", "pairs", "colmap")):  # before any image is read
-        from fviz.errors import FvizError
-        from fviz.run.config import user_source_conflict
-
-        kitti = {"--kitti-root": kitti_root, "--sequence": sequence, "--drive": drive, "--cams": cams,
-                 "--synthetic": synthetic or None}
-        given = [flag for flag, v in kitti.items() if v is not None]
-        if given:
-            raise FvizError(f"{given[0]}: {user_source_conflict(user.get('pairs'), user.get('colmap'))}")
-    p = _user_pair(user, frame)
-    if p is None:
-        p = _kitti_or_synthetic(kitti_root, sequence, drive, frame, pair_kind, step, cams, synthetic, seed)
-    if user.get("matches") or user.get("gt_matches"):
-        from fviz.data.sources import WithCorrespondences, attach
-
-        given = WithCorrespondences(None, user.get("matches"), user.get("gt_matches"), n_pairs=1)
-        p = attach(p, given.matches, given.gt_matches)
-    return p
-
-
-def _user_pair(user: dict, frame: int):
-    """The pair of --image-a/--image-b, or line --index of --pairs, or pair --index of --colmap; else None."""
-    from fviz.errors import FvizError
-
-    images = user.get("image_a") is not None or user.get("image_b") is not None
-    listed = user.get("pairs") is not None or user.get("colmap") is not None
-    names = None
-    if images and listed:  # the pair of a list, by its images' names
-        if user.get("image_a") is None or user.get("image_b") is None or user.get("index") is not None:
-            raise FvizError("--pairs/--colmap: pick a pair by --index N or by both names (--image-a NAME --image-b NAME)")
-        names, images = (str(user["image_a"]), str(user["image_b"])), False
-    gt_flags = [f for f, k in (("--K", "K"), ("--K-a", "K_a"), ("--K-b", "K_b"), ("--T-ab", "T_ab"), ("--F-gt", "F_gt")) if user.get(k)]
-    if gt_flags and (not images or names):
-        raise FvizError(f"{gt_flags[0]}: only with --image-a and --image-b (a pairs file or model has its own ground truth)")
-    if images:
-        if user.get("image_a") is None or user.get("image_b") is None:
-            raise FvizError(f"--image-{'a' if user.get('image_a') is None else 'b'}: missing (give both images)")
-        from fviz.data.images import two_images
-
-        return two_images(str(user["image_a"]), str(user["image_b"]), user.get("K"), user.get("K_a"), user.get("K_b"),
-                          user.get("T_ab"), user.get("F_gt"))
-    if not listed:
-        if user.get("index") is not None:
-            raise FvizError("--index: only with --pairs or --colmap")
-        return None
-    from fviz.data.sources import user_source
-
-    source = user_source(user.get("pairs"), user.get("images"), user.get("colmap"), user.get("min_shared"))
-    index = source.index_of(user.get("index"), names)
-    return source.load(source.pair_id(index))
-
-
-def _kitti_or_synthetic(kitti_root, sequence, drive, frame, pair_kind, step, cams, synthetic: bool, seed: int):
-    if synthetic:
-        from fviz.data.synthetic import SceneConfig, synthetic_pair
-
-        return synthetic_pair(seed, SceneConfig(stereo=pair_kind == "stereo"))
-    from fviz.data.kitti import open_dataset
-
-    ds = open_dataset(o.kitti_root(kitti_root), sequence, drive)
-    return ds.pair(frame, pair_kind, step, o.parse_cams(cams))
-
-
 def default_out(name: str) -> Path:
     return Path("runs") / (name.replace("/", "_") + ".rrd")
 
@@ -136,14 +69,12 @@ def pair(
 
     # rerun takes ~0.5 s to import: let it load while the features are computed.
     threading.Thread(target=__import__, args=("rerun",), daemon=True).start()
+    from fviz import api
     from fviz.errors import FvizError
-    from fviz.estimators.options import EstimatorOptions
     from fviz.estimators.registry import DEFAULT_ESTIMATORS
-    from fviz.evaluate import MIN_MATCHES, evaluate_pair
-    from fviz.record.writer import write_pair_recording
+    from fviz.evaluate import MIN_MATCHES
 
     names, threshold = o.thresholds(tuple(estimator or DEFAULT_ESTIMATORS), threshold)
-    opts = EstimatorOptions(names, features, max_keypoints, ratio, mutual, threshold, confidence, max_iters, seed)
     if lines < 0:
         raise FvizError(f"--lines {lines}: must be >= 0")
     if probe < 0:
@@ -153,20 +84,18 @@ def pair(
 
         target(out)  # a folder or special file as --out: refused before any work
     _check_viewer(spawn, web, bind, port, web_port)
-    ests = opts.estimators()
-    user = dict(image_a=image_a, image_b=image_b, K=K, K_a=K_a, K_b=K_b, T_ab=T_ab, F_gt=F_gt, pairs=pairs, images=images,
-                index=index, colmap=colmap, min_shared=min_shared, matches=matches, gt_matches=gt_matches)
-    p = load_pair(kitti_root, sequence, drive, frame, pair_kind, step, cams, synthetic, seed, user)
-    from fviz.estimators.base import missing_K
+    from fviz.estimators.options import EstimatorOptions
 
-    if (why := next((w for n, fn in ests if (w := missing_K(n, fn, p))), None)) is not None:
-        raise FvizError(why)
-    result = evaluate_pair(p, ests, opts.feature_config(), norm, eval_threshold, threshold, timeout=estimator_timeout)
-    from fviz.diagnose import gt_suspect_note
-
-    if (note := gt_suspect_note(p, result)) is not None:
-        result.notes.insert(0, note)
-    path = write_pair_recording(out or default_out(p.id.name), p, result, lines, probe, probe_by)
+    # resolved once, before the pair is loaded (a deep model loads once; a bad name fails first)
+    ests = EstimatorOptions(names, features, max_keypoints, ratio, mutual, threshold, confidence, max_iters, seed).estimators()
+    p = api.load_pair(kitti_root, sequence=sequence, drive=drive, frame=frame, kind=pair_kind, step=step, cams=o.parse_cams(cams),
+                      synthetic=synthetic, seed=seed, image_a=image_a, image_b=image_b, K=K, K_a=K_a, K_b=K_b, T_ab=T_ab,
+                      F_gt=F_gt, pairs=pairs, images=images, index=index, colmap=colmap, min_shared=min_shared,
+                      matches=matches, gt_matches=gt_matches)
+    result = api.inspect_pair(p, ests, features=features, max_keypoints=max_keypoints, ratio=ratio, mutual=mutual,
+                              threshold=threshold, confidence=confidence, max_iters=max_iters, seed=seed, norm=norm,
+                              eval_threshold=eval_threshold, timeout=estimator_timeout)
+    path = api.save_recording(out or default_out(p.id.name), p, result, lines=lines, probe=probe, probe_by=probe_by)
     doc = result.to_dict()
     doc["recording"] = str(path)
     if as_json:

@@ -151,6 +151,15 @@ def make_pair(pid: PairId, path_a: Path, path_b: Path, K_a=None, K_b=None, T_ab=
         raise FvizError(f"{what_images or what}: image a and image b are the same file {path_a}: every F through the points fits two "
                         "copies of one image (residuals ~0, 100 % inliers say nothing); give two different images")
     image_a, image_b = read_user_image(path_a, "image a"), read_user_image(path_b, "image b")
+    return pair_of_arrays(pid, image_a, image_b, K_a, K_b, T_ab, F_gt, rot, gt_accuracy_px, what,
+                          extra={"path_a": str(path_a), "path_b": str(path_b)})
+
+
+def pair_of_arrays(pid: PairId, image_a: np.ndarray, image_b: np.ndarray, K_a=None, K_b=None, T_ab=None, F_gt=None,
+                   rot: tuple[int, int] = (0, 0), gt_accuracy_px: float | None = None, what: str = "pair",
+                   extra: dict | None = None) -> Pair:
+    """The Pair of two decoded images (uint8, (H, W) or (H, W, 3) RGB) and what is known of their geometry
+    (see :func:`ground_truth`); ``rot`` turns them (and their cameras and F) as SuperGlue does."""
     gt = ground_truth(K_a, K_b, T_ab, F_gt, what)
     notes = []
     if image_a.ndim != image_b.ndim:
@@ -176,7 +185,7 @@ def make_pair(pid: PairId, path_a: Path, path_b: Path, K_a=None, K_b=None, T_ab=
         notes.append("image a and image b have identical pixels: any F through the points fits them, so near-zero "
                      "residuals and 100 % inliers say nothing")
     return Pair(id=pid, image_a=image_a, image_b=image_b, gt_accuracy_px=gt_accuracy_px, notes=notes,
-                extra={"path_a": str(path_a), "path_b": str(path_b)}, **gt)
+                extra=dict(extra or {}), **gt)
 
 
 def two_images(image_a: str, image_b: str, K: str | None = None, K_a: str | None = None, K_b: str | None = None,

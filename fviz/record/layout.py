@@ -41,6 +41,19 @@ Entity paths (``{v}`` is the view, ``a`` or ``b``; ``{e}`` an estimator name, ``
     summary                     TextDocument (Markdown): pair, compact metrics table, F matrices below
     pair/info                   TextDocument: the pair's name (what ``fviz summary`` lists)
 
+Training (``fviz train``'s train.rrd, :func:`fviz.log_training_step`; ``{k}`` names a watched validation pair):
+
+    train/{curve}, val/{metric} Scalars on ``step``: the training loss, learning rate, gradient norm, and
+                                the validation metrics (``fviz train`` only)
+    watch/{k}/{v}/image         EncodedImage (JPEG), static: the pair as the network sees it (b below a)
+    watch/{k}/{v}/gt            LineStrips2D, static: the ground truth's epipolar lines of the pair's fixed
+                                correspondences (white) and a cross at its epipole
+    watch/{k}/{v}/net           LineStrips2D on ``step``: the network's lines of the same correspondences (in
+                                its colour, ``watch_colors``) and its epipole's cross (arrow when outside)
+    watch/{k}/points            Points2D on ``step``: both ends of the correspondences (b's shifted by
+                                ``offset_b``), coloured by the network's residual (SED, px; the residual scale)
+    watch/{k}/sed_px            Scalars on ``step``: the network's median SED on the correspondences (px)
+
 Image b is drawn below image a: ``b`` carries a translation by image a's height plus ``GAP_PX``, so one 2D
 view shows both (KITTI frames are 3.3:1: stacked they use the screen) and a match is one segment.
 
@@ -63,6 +76,7 @@ from typing import Iterable, Sequence
 import numpy as np
 
 TIMELINE = "pair"
+TRAIN_TIMELINE = "step"  # train.rrd and log_training_step: the optimizer step
 RANK_TIMELINE = "rank"  # triage.rrd: the worst pair first
 PROBE_TIMELINE = "probe"
 VIEWS = ("a", "b")
@@ -459,3 +473,42 @@ def blueprint(names: Sequence[str], sizes: tuple[tuple[int, int], tuple[int, int
     time_panel = rrb.TimePanel(state="collapsed", timeline=PROBE_TIMELINE if single_pair else RANK_TIMELINE if head else TIMELINE,
                                play_state="paused", fps=2.0)
     return rrb.Blueprint(root, time_panel, collapse_panels=True)
+
+
+# ---------------------------------------------------------------------------------------------- training
+
+WATCH = "watch"  # the watched validation pairs of a training run (see the module docstring)
+NET = "net"  # the network's F in a watched pair; the ground truth is GT
+
+
+def watch(name: str, what: str = "") -> str:
+    """``watch/{name}`` or ``watch/{name}/{what}`` (what: ``a/image``, ``b/net``, ``points``, ``sed_px``, ...)."""
+    return f"{WATCH}/{name}" + (f"/{what}" if what else "")
+
+
+def watch_colors() -> dict[str, tuple[int, int, int]]:
+    """The network's colour (the palette's first) and the ground truth's (white) in watched pairs."""
+    return {NET: PALETTE[0], GT: GT_COLOR}
+
+
+def training_blueprint(names: Sequence[str], sizes: Sequence[tuple[tuple[int, int], tuple[int, int]]], curves: bool = False):
+    """train.rrd's layout: one tab per watched pair (image a above b, the network's lines and epipole beside the
+    ground truth's, keypoints by residual; its SED over ``step`` below), and with ``curves`` a tab of the
+    training and validation curves. The time panel opens on ``step``: scrubbing it shows the lines converge."""
+    import rerun.blueprint as rrb
+    from rerun.blueprint.archetypes import PlotBackground
+
+    dark = PlotBackground(color=CHART_BACKGROUND, show_grid=True)
+    tabs = []
+    for name, ((wa, ha), (wb, hb)) in zip(names, sizes):
+        bottom = offset_b((wa, ha))[1] + hb
+        images = rrb.Spatial2DView(origin=watch(name), name=f"{name}: network (colour) vs ground truth (white)",
+                                   visual_bounds=rrb.VisualBounds2D(x_range=[-0.5, max(wa, wb) - 0.5], y_range=[-0.5, bottom - 0.5]))
+        plot = rrb.TimeSeriesView(origin=watch(name, "sed_px"), name=f"{name}: median SED (px)", background=dark)
+        tabs.append(rrb.Vertical(images, plot, row_shares=[3, 1], name=f"pair {name}"))
+    if curves:
+        tabs.append(rrb.Grid(rrb.TimeSeriesView(origin="train", name="training", background=dark),
+                             rrb.TimeSeriesView(origin="val", name="validation", background=dark), name="curves"))
+    root = rrb.Tabs(*tabs) if tabs else rrb.Tabs(rrb.TextDocumentView(origin="/", name="empty"))
+    time_panel = rrb.TimePanel(state="expanded", timeline=TRAIN_TIMELINE, play_state="paused", fps=4.0)
+    return rrb.Blueprint(root, time_panel, collapse_panels=False)

@@ -294,17 +294,18 @@ def residual_scale(size_b: tuple[int, int]) -> list[tuple]:
 
 
 def _log_marks(rec, path: str, strips: list, colors: list, radii: list, labels: list, arrows: list,
-               clear: bool = True, show_labels: bool = False) -> None:
+               clear: bool = True, show_labels: bool = False, static: bool = False) -> None:
     """LineStrips2D (one colour, radius and label per strip: shown with ``show_labels``, else on hover) and
     Arrows2D [(origin, vector, colour)]. clear: log the arrows even when there are none (over a timeline, so
-    that earlier arrows do not linger); a single pair leaves them out, which saves their columns."""
+    that earlier arrows do not linger); a single pair leaves them out, which saves their columns. static: once
+    for the whole recording (no time)."""
     import rerun as rr
 
     marks = [rr.LineStrips2D(strips, colors=colors, radii=radii, labels=labels, show_labels=show_labels)]
     if arrows or clear:
         marks.append(rr.Arrows2D(origins=[a[0] for a in arrows] or np.zeros((0, 2)), vectors=[a[1] for a in arrows]
                                  or np.zeros((0, 2)), colors=[a[2] for a in arrows] or None, radii=2.0))
-    rec.log(path, *marks)
+    rec.log(path, *marks, static=static)
 
 
 def _fmt(v: float | None, digits: int = 3) -> str:
@@ -834,18 +835,31 @@ def log_reference(rec, pair: Pair, result: PairResult, colors: Colors, sub: np.n
     return n > 0
 
 
+def pair_blueprint(pair: Pair, result: PairResult):
+    """The stored layout of one pair's recording (:func:`fviz.record.layout.blueprint`, single pair)."""
+    names = _names(result)
+    classes = match_classes(result)
+    return L.blueprint(names, (pair.size_a, pair.size_b), single_pair=True, classes=classes if L.GT in classes else None,
+                       notice=suspect_notice(result.notes))
+
+
+def log_pair_recording(rec, pair: Pair, result: PairResult, n_lines: int = 30, probe_steps: int = PROBE_STEPS,
+                       probe_by: str | None = None, index: int = 0) -> int:
+    """Everything ``inspect pair`` records of one pair into ``rec`` at ``pair`` = index: legend, images,
+    lines, epipoles, summary, comparison, and the ``probe`` timeline. -> the probe steps logged."""
+    colors = L.estimator_colors(_names(result))
+    steps = len(probe_order(result, probe_by)[:max(probe_steps, 0)])  # checks probe_by before logging
+    log_static(rec, _names(result))
+    rec.set_time(L.PROBE_TIMELINE, sequence=0)
+    log_pair(rec, index, pair, result, n_lines, colors, steps)
+    log_probe(rec, index, pair, result, steps, probe_by, colors)
+    return steps
+
+
 def write_pair_recording(path: str | Path, pair: Pair, result: PairResult, n_lines: int = 30,
                          probe_steps: int = PROBE_STEPS, probe_by: str | None = None) -> Path:
     """One pair, one file, with its blueprint stored (what ``fviz inspect pair`` writes)."""
-    names = _names(result)
-    colors = L.estimator_colors(names)
-    steps = len(probe_order(result, probe_by)[:max(probe_steps, 0)])  # checks --probe-by before writing
-    classes = match_classes(result)
-    bp = L.blueprint(names, (pair.size_a, pair.size_b), single_pair=True, classes=classes if L.GT in classes else None,
-                     notice=suspect_notice(result.notes))
-    with RecordingWriter(path, "fviz-inspect", bp, index=False) as w:
-        log_static(w.rec, names)
-        w.rec.set_time(L.PROBE_TIMELINE, sequence=0)
-        log_pair(w.rec, 0, pair, result, n_lines, colors, steps)
-        log_probe(w.rec, 0, pair, result, steps, probe_by, colors)
+    probe_order(result, probe_by)  # a bad --probe-by fails before any file is opened
+    with RecordingWriter(path, "fviz-inspect", pair_blueprint(pair, result), index=False) as w:
+        log_pair_recording(w.rec, pair, result, n_lines, probe_steps, probe_by)
     return Path(path)

@@ -31,7 +31,9 @@ these points are exact too; a fixed generator makes them identical across valida
 Outputs in ``train.out_dir``: ``last.pt`` (full checkpoint: model, optimizer, recipe, metrics, step,
 code version, the curves; rewritten atomically every ``checkpoint_every`` steps and at each
 validation), ``model.pt`` (weights only, ``export_dtype``, written at the end: the file to ship), and
-``train.rrd`` (Rerun recording of the curves ``train/*`` and ``val/*`` on the ``step`` timeline,
+``train.rrd`` (Rerun recording of the curves ``train/*`` and ``val/*`` on the ``step`` timeline, and of the
+network on ``train.watch_pairs`` fixed validation pairs every ``train.watch_every`` steps or at each checkpoint:
+its epipolar lines beside the ground truth's, through :func:`fviz.log_training_step`;
 rewritten complete, footer included, under a temporary name and renamed into place at each
 checkpoint: after SIGKILL it is the last checkpoint's complete recording).  ``train/loss`` is the
 loss of each training batch in training mode (dropout on, BatchNorm on the batch's statistics);
@@ -149,6 +151,10 @@ class TrainResult:
     history: list[dict[str, Any]]  # every validation: {"step", "epoch", metrics...}
     losses: list[float] = field(default_factory=list)  # training loss of every step of this run
     seconds: float = 0.0
+    # where the time went (benchmarks/bench_train_record.py): the optimizer steps (batch on the device, forward,
+    # backward, update) and the watched pairs (their forward passes and their logging into train.rrd)
+    step_seconds: float = 0.0
+    watch_seconds: float = 0.0
 
 
 # ----------------------------------------------------------------------------------------------- loss & metrics
@@ -281,7 +287,7 @@ class _Curves:
     run rewrites the same ``train.rrd`` with the whole history.
     """
 
-    def __init__(self, path: Path, recording_id: str, state: dict | None = None):
+    def __init__(self, path: Path, recording_id: str, state: dict | None = None, watch: list | None = None):
         import rerun as rr
 
         self.rr = rr
@@ -290,6 +296,10 @@ class _Curves:
         self.series: dict[str, tuple[list[int], list[float]]] = {
             k: (list(v[0]), list(v[1])) for k, v in (state or {}).items()
         }
+        # the watched validation pairs (fviz.log_training_step): the pairs, and the network's F on them per frame
+        self.pairs: list = []
+        self.frames: list[tuple[int, list]] = [(int(s), F) for s, F in (watch or [])]
+        self.watch_seconds = 0.0  # spent on them: forward passes and logging
         path.with_name(path.name + ".part").unlink(missing_ok=True)  # left by fviz versions that streamed into it
 
     def log(self, step: int, values: dict[str, float]) -> None:
@@ -302,6 +312,11 @@ class _Curves:
     def state(self) -> dict[str, tuple[list[int], list[float]]]:
         return self.series
 
+    def watch(self, step: int, F_pred: torch.Tensor) -> None:
+        """Keep the network's F (B, 3, 3) on the watched pairs at ``step`` (one frame; a step's last one counts)."""
+        F = F_pred.detach().float().cpu().tolist()
+        self.frames = [f for f in self.frames if f[0] != step] + [(int(step), F)]
+
     def snapshot(self) -> None:
         """Make ``path`` a complete recording of everything logged so far (atomic rename)."""
         rr = self.rr
@@ -309,9 +324,22 @@ class _Curves:
         rec = rr.RecordingStream("fviz-train", recording_id=self.recording_id)
         rec.set_log_time_enabled(False)
         try:
-            rec.save(str(tmp))
+            names = [str(i) for i in range(len(self.pairs))]
+            bp = None
+            if self.pairs:
+                from fviz.record.layout import training_blueprint
+
+                bp = training_blueprint(names, [(p.size_a, p.size_b) for p in self.pairs], curves=True)
+            rec.save(str(tmp), default_blueprint=bp)
             for key, (steps, vals) in self.series.items():
                 rec.send_columns(key, indexes=[rr.TimeColumn("step", sequence=steps)], columns=rr.Scalars.columns(scalars=vals))
+            if self.pairs:
+                from fviz.api import log_training_step
+
+                t0 = time.perf_counter()
+                for step, F in self.frames:
+                    log_training_step(rec, step, self.pairs, F, names, blueprint=False)
+                self.watch_seconds += time.perf_counter() - t0
             rec.flush()
             rec.disconnect()
             os.replace(tmp, self.path)
@@ -456,6 +484,7 @@ def train(
     history: list[dict[str, Any]] = []
     recording_id = str(uuid.uuid4())
     curve_state: dict = {}
+    watch_state: list = []
     if resume:
         if not ckpt_path.exists():
             raise FvizError(f"--resume: no checkpoint to resume at {ckpt_path}")
@@ -470,6 +499,7 @@ def train(
         history = list(ckpt.get("metrics", {}).get("history", []))
         recording_id = ckpt.get("recording_id") or recording_id
         curve_state = ckpt.get("curves") or {}
+        watch_state = ckpt.get("watch") or []
         if ckpt.get("rng_state") is not None and world == 1:
             torch.set_rng_state(ckpt["rng_state"])
 
@@ -506,8 +536,12 @@ def train(
         val_loader = _loader(val_ds, _Batches(epoch_batches(len(val_ds), t.batch_size, 0, 0, shuffle=False)), loader_workers, pin)
 
     if main and record:
-        curves: Any = _Curves(out_dir / "train.rrd", recording_id, curve_state)
+        curves: Any = _Curves(out_dir / "train.rrd", recording_id, curve_state, watch_state)
+        t0 = time.perf_counter()
+        curves.pairs, watch_batch = watched_pairs(val_ds, t.watch_pairs, device)
+        curves.watch_seconds += time.perf_counter() - t0
     else:
+        watch_batch = None
         curves = _Quiet()
     recording = getattr(curves, "path", None)
 
@@ -517,6 +551,7 @@ def train(
     last_checkpoint = [step if resume else -1]
     metrics: dict[str, float] = {k: v for k, v in history[-1].items() if k not in ("step", "epoch")} if history else {}
 
+    step_seconds = 0.0
     pending: list[torch.Tensor] = []  # losses of the steps since the last flush, still on the device
     point_rng = torch.Generator().manual_seed(t.seed * 7919 + step + rank)  # virtual correspondences of sed_loss
     best = [min((h[t.keep_best] for h in history if t.keep_best in h), default=math.inf) if t.keep_best else math.inf]
@@ -559,11 +594,26 @@ def train(
                 step=step, epoch=epoch, batch_in_epoch=batch_in_epoch, recording_id=recording_id, version=version,
             )
             state["curves"] = curves.state()
+            if watch_batch is not None:
+                if not t.watch_every:
+                    watch()
+                state["watch"] = curves.frames
             atomic_save(state, ckpt_path)
             last_good.update(path=ckpt_path, step=step)
             curves.snapshot()
         last_checkpoint[0] = step
         _barrier(world)
+
+    def watch() -> None:
+        """The network's F on the watched pairs at this step, for train.rrd (eval mode, as validation)."""
+        t0 = time.perf_counter()
+        was_training = model.training
+        model.eval()
+        with torch.no_grad(), torch.autocast(device.type, dtype=amp_dtype or torch.float32, enabled=amp_dtype is not None):
+            F_pred = model(*watch_batch, strict_norm=False)
+        model.train(was_training)
+        curves.watch(step, F_pred)
+        curves.watch_seconds += time.perf_counter() - t0
 
     def run_validation() -> None:
         nonlocal metrics
@@ -590,11 +640,14 @@ def train(
     last_validated = history[-1]["step"] if history else -1
     stop = _StopRequests(main and world == 1).__enter__()
     try:
+        if watch_batch is not None and not any(f[0] == step for f in curves.frames):
+            watch()  # where the network starts
         while not done:
             batches = epoch_batches(len(train_ds), t.batch_size, t.seed, epoch, rank, world)
             train_sampler.batches = batches[batch_in_epoch:]
             net.train()
             for img_a, img_b, F_t in train_loader:
+                t_step = time.perf_counter()
                 img_a = img_a.to(device, non_blocking=True)
                 img_b = img_b.to(device, non_blocking=True)
                 F_t = F_t.to(device, non_blocking=True)
@@ -616,11 +669,14 @@ def train(
                     last_grad[0] = torch.nn.utils.clip_grad_norm_(model.parameters(), t.grad_clip)
                 scaler.step(opt)
                 scaler.update()
+                step_seconds += time.perf_counter() - t_step  # the host's view: on a GPU, kernels may still run
                 step += 1
                 batch_in_epoch += 1
                 bar.advance()
                 if step % t.log_every == 0 or step == 1:
                     flush()
+                if watch_batch is not None and t.watch_every and step % t.watch_every == 0:
+                    watch()
                 if t.val_every and step % t.val_every == 0:
                     run_validation()
                     last_validated = step
@@ -673,8 +729,23 @@ def train(
             dist.destroy_process_group()
     return TrainResult(
         out_dir=out_dir, checkpoint=ckpt_path, weights=weights, recording=recording, step=step, epoch=epoch,
-        metrics=metrics, history=history, losses=losses, seconds=time.perf_counter() - t_start,
+        metrics=metrics, history=history, losses=losses, seconds=time.perf_counter() - t_start, step_seconds=step_seconds,
+        watch_seconds=getattr(curves, "watch_seconds", 0.0),
     )
+
+
+def watched_pairs(val_ds, n: int, device: torch.device) -> tuple[list, tuple[torch.Tensor, torch.Tensor] | None]:
+    """The first ``n`` validation pairs as :class:`fviz.Pair` (the model's input images, F in its pixels) and as
+    the model's input batch (img_a, img_b (n, 1, H, W) on ``device``); ([], None) without them."""
+    from fviz.api import pair_from_images
+
+    n = min(n, len(val_ds) if val_ds is not None else 0)
+    if n == 0:
+        return [], None
+    img_a, img_b, F_t = val_ds[list(range(n))]
+    pairs = [pair_from_images(a[0].cpu().numpy(), b[0].cpu().numpy(), F_gt=F.cpu().numpy(), name=f"val{i}")
+             for i, (a, b, F) in enumerate(zip(img_a, img_b, F_t))]
+    return pairs, (img_a.to(device), img_b.to(device))
 
 
 def unit_translation(model, train_ds, batch_size: int, device: torch.device) -> float | None:

@@ -10,7 +10,7 @@ A recipe has three tables, every key optional (defaults below):
               val_fraction, train_size, val_size, val_points, cache, synthetic = { SceneConfig fields }
     [train]   batch_size, lr, schedule, warmup_steps, weight_decay, epochs, max_steps, l1_weight, l2_weight, loss_frame,
               grad_clip, t_norm_weight, sed_weight, sed_points, keep_best, seed, device, amp, num_workers, threads, out_dir, init, checkpoint_every, val_every,
-              log_every, export_dtype
+              log_every, watch_pairs, watch_every, export_dtype
 
     [variants."siamese-rec-pos-fbn"]   # optional per-variant overrides, applied when
     train = { lr = 3e-4 }              # model.variant is that name
@@ -148,6 +148,10 @@ class TrainSection:
     checkpoint_every: int = field(default=0, metadata={"min": 0})  # steps; 0: at each validation
     val_every: int = field(default=0, metadata={"min": 0})  # steps; 0: at the end of each epoch
     log_every: int = field(default=10, metadata={"min": 1})
+    # train.rrd shows the network on a few fixed validation pairs (fviz.log_training_step): its epipolar lines beside
+    # the ground truth's, its epipole and residuals, on the ``step`` timeline (scrub it: the lines converge).
+    watch_pairs: int = field(default=4, metadata={"min": 0})  # the first validation pairs (0: off)
+    watch_every: int = field(default=0, metadata={"min": 0})  # steps between frames; 0: at each checkpoint
     export_dtype: str = field(default="float16", metadata=_choices("float16", "float32"))
 
 
