@@ -152,14 +152,15 @@ def make_pair(pid: PairId, path_a: Path, path_b: Path, K_a=None, K_b=None, T_ab=
                         "copies of one image (residuals ~0, 100 % inliers say nothing); give two different images")
     image_a, image_b = read_user_image(path_a, "image a"), read_user_image(path_b, "image b")
     return pair_of_arrays(pid, image_a, image_b, K_a, K_b, T_ab, F_gt, rot, gt_accuracy_px, what,
-                          extra={"path_a": str(path_a), "path_b": str(path_b)})
+                          extra={"path_a": str(path_a), "path_b": str(path_b)}, what_K=what_K)
 
 
 def pair_of_arrays(pid: PairId, image_a: np.ndarray, image_b: np.ndarray, K_a=None, K_b=None, T_ab=None, F_gt=None,
                    rot: tuple[int, int] = (0, 0), gt_accuracy_px: float | None = None, what: str = "pair",
-                   extra: dict | None = None) -> Pair:
+                   extra: dict | None = None, what_K: tuple[str, str] | None = None) -> Pair:
     """The Pair of two decoded images (uint8, (H, W) or (H, W, 3) RGB) and what is known of their geometry
-    (see :func:`ground_truth`); ``rot`` turns them (and their cameras and F) as SuperGlue does."""
+    (see :func:`ground_truth`); ``rot`` turns them (and their cameras and F) as SuperGlue does. ``what_K``: where
+    each K came from (a flag, a file's line), named when its principal point lies outside its image."""
     gt = ground_truth(K_a, K_b, T_ab, F_gt, what)
     notes = []
     if image_a.ndim != image_b.ndim:
