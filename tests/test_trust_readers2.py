@@ -219,6 +219,10 @@ def test_hloc_folder_with_two_feature_files_pairs_by_hlocs_names(hloc_pair, tmp_
     assert reader.features.name == "feats-superpoint-n4096-r1024.h5"
     np.testing.assert_array_equal(reader.for_pair(pair).x_a, kps["a.png"][[0, 1, 3, 5]])
     assert open_matches(tmp_path / "feats-disk_matches-lightglue_pairs.h5").features.name == "feats-disk.h5"
+    shutil.copy(path, tmp_path / "m.h5")  # a name hloc does not give: two candidates, named
+    with pytest.raises(FvizError, match=r"m.h5: hloc's features file not found .*found feats-disk.h5, "
+                                        r"feats-superpoint-n4096-r1024.h5\): name it so, or copy it to features.h5"):
+        open_matches(tmp_path / "m.h5")
 
 
 def test_a_cut_superglue_npz_is_one_line(tmp_path):

@@ -326,8 +326,9 @@ class HlocReader:
                 continue
         if len(found) != 1:
             what = "none" if not found else ", ".join(p.name for p in found)
-            raise FvizError(f"--matches {path}: hloc's features file not found beside it (FEATURES.h5 for hloc's "
-                            f"FEATURES_..._matches file, features.h5, or one other .h5 with keypoints; found {what})")
+            raise FvizError(f"--matches {path}: hloc's features file not found beside it (FEATURES.h5 beside hloc's "
+                            f"FEATURES_matches-..._PAIRS.h5, features.h5, or one other .h5 with keypoints; found {what}): "
+                            "name it so, or copy it to features.h5 beside the matches file")
         return found[0]
 
     def _open(self, path: Path):
