@@ -424,3 +424,15 @@ def test_fvizs_sift_descriptors_are_written_unit_norm_as_hlocs_and_read_back_who
     back = cache._read("features.h5", name, lambda g: cache._features(g, "digest"))
     assert back is not None, cache.notes
     np.testing.assert_array_equal(back.descriptors, desc)  # OpenCV's whole-number SIFT, restored exactly
+
+
+def test_hloc_keypoints_outside_an_exif_rotated_image_without_image_size_name_exif(tmp_path):
+    exif_jpeg(textured(240, 320), 6, tmp_path / "a.jpg")  # shown 240 wide: a stored x of 300 lies outside
+    exif_jpeg(textured(240, 320, 1), 1, tmp_path / "b.jpg")
+    kps = {"a.jpg": np.array([[300.0, 20.0], [30.0, 40.0]]), "b.jpg": np.array([[11.0, 21.0], [31.0, 41.0]])}
+    path = write_hloc(tmp_path, kps, np.array([0, 1]))
+    pair = two_images(str(tmp_path / "a.jpg"), str(tmp_path / "b.jpg"))
+    with pytest.raises(FvizError, match=r"lies outside the 240x320 image a \(image a has EXIF orientation 6, which fviz "
+                                        r"applies and hloc does not"):
+        HlocReader(path).for_pair(pair)
+    assert any("has EXIF orientation 6" in n and "no image_size" in n for n in pair.notes)

@@ -346,7 +346,10 @@ class HlocReader:
                                          (names_to_pair(a, b, "_"), False), (names_to_pair(b, a, "_"), True)):
                         if key in mf and isinstance(mf[key], self._h5.Group) and "matches0" in mf[key]:
                             c = self._read(mf, ff, key, (b, a) if reverse else (a, b), reverse, pair)
-                            return check_inside(c, pair)
+                            try:
+                                return check_inside(c, pair)
+                            except FvizError as exc:
+                                raise FvizError(f"{exc}{self._exif_hint(pair)}") from None
         raise FvizError(f"--matches {self.path}: no pair {names_to_pair(names_a[0], names_b[0])} (nor reversed) for "
                         f"{pair.id.name}")
 
@@ -362,6 +365,19 @@ class HlocReader:
         scores = g["matching_scores0"][()] if "matching_scores0" in g else None
         c = from_match_vector(kps[0], kps[1], g["matches0"][()], scores, where)
         return c.swapped() if reverse else c
+
+    @staticmethod
+    def _exif_hint(pair) -> str:
+        """Why keypoints may lie outside an image: its EXIF orientation, when it has one."""
+        from fviz.data.images import image_header
+
+        for v in "ab":
+            path = pair.extra.get(f"path_{v}")
+            header = image_header(path) if path else None
+            if header is not None and header.orientation != 1:
+                return (f" (image {v} has EXIF orientation {header.orientation}, which fviz applies and hloc does not: "
+                        "without image_size in the features file fviz cannot tell the keypoints' frame)")
+        return ""
 
     def _shown(self, kp: np.ndarray, group, name: str, pair, v: str) -> np.ndarray:
         """Keypoints of image ``v`` in the image as fviz shows it. hloc reads an image as stored, ignoring its
