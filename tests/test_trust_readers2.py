@@ -436,3 +436,35 @@ def test_hloc_keypoints_outside_an_exif_rotated_image_without_image_size_name_ex
                                         r"applies and hloc does not"):
         HlocReader(path).for_pair(pair)
     assert any("has EXIF orientation 6" in n and "no image_size" in n for n in pair.notes)
+
+
+@pytest.mark.parametrize("orientation, rot", [(1, (1, 2)), (6, (1, 0)), (3, (3, 1))])
+def test_hloc_keypoints_under_a_pairs_files_rot_are_turned_with_the_image(tmp_path, orientation, rot):
+    """hloc knows nothing of a pairs file's rot (nor of EXIF): its keypoints are of the stored image."""
+    from fviz.data.pairsfile import PairsSource
+
+    stored_a, stored_b = textured(240, 320, 0), textured(240, 320, 1)
+    exif_jpeg(stored_a, orientation, tmp_path / "a.jpg")
+    exif_jpeg(stored_b, 1, tmp_path / "b.jpg")
+    rng = np.random.default_rng(2)
+    kp_a, kp_b = rng.uniform(5, 230, (30, 2)), rng.uniform(5, 230, (30, 2))
+    path = write_hloc(tmp_path, {"a.jpg": kp_a, "b.jpg": kp_b}, np.arange(30), sizes={"a.jpg": (320, 240), "b.jpg": (320, 240)})
+    (tmp_path / "pairs.txt").write_text(f"a.jpg b.jpg {rot[0]} {rot[1]}\n")
+    src = PairsSource(tmp_path / "pairs.txt", tmp_path)
+    pair = src.load(src.pair_ids()[0])
+    c = HlocReader(path).for_pair(pair)
+    shown_a = kp_a if orientation == 1 else exif_shown(orientation, kp_a, 320, 240)
+    wa, ha = (320, 240) if orientation in (1, 3) else (240, 320)
+    np.testing.assert_allclose(c.x_a, rot90_points(shown_a, rot[0], wa, ha), atol=1e-9)
+    np.testing.assert_allclose(c.x_b, rot90_points(kp_b, rot[1], 320, 240), atol=1e-9)
+    ia = np.rint(c.x_a).astype(int)  # the shown image holds the stored pixels there
+    sa = np.rint(kp_a).astype(int)
+    assert np.abs(pair.image_a[ia[:, 1], ia[:, 0]].astype(int) - stored_a[sa[:, 1], sa[:, 0]]).max() <= 6
+    assert any(f"the pairs file's rot {rot[0]}" in n for n in pair.notes)
+
+
+def test_hloc_image_size_of_another_image_is_refused(hloc_pair, tmp_path):
+    pair, kps = hloc_pair
+    path = write_hloc(tmp_path, kps, np.array([0, 1, -1, 2, -1, 3]), sizes={"a.png": (640, 480), "b.png": (320, 240)})
+    with pytest.raises(FvizError, match=r"features.h5: image a.png is 640x480 in its image_size, 320x240 as stored here"):
+        HlocReader(path).for_pair(pair)

@@ -381,32 +381,39 @@ class HlocReader:
 
     def _shown(self, kp: np.ndarray, group, name: str, pair, v: str) -> np.ndarray:
         """Keypoints of image ``v`` in the image as fviz shows it. hloc reads an image as stored, ignoring its
-        EXIF orientation (its ``image_size`` is the stored width, height); fviz applies the orientation (as
-        OpenCV does): hloc's keypoints are turned with it, with a note. fviz's own files (groups with its
-        settings attribute) hold keypoints of the shown image already."""
-        from fviz.data.images import EXIF_TURNS, exif_map, image_header
+        EXIF orientation (its ``image_size`` is the stored width, height) and knows nothing of a pairs file's
+        rot; fviz applies both (the orientation as OpenCV does): hloc's keypoints are turned with them, with a
+        note. fviz's own files (groups with its settings attribute) hold keypoints of the shown image already."""
+        from fviz.data.images import EXIF_TURNS, exif_map, image_header, rotation_map
 
+        if "fviz_settings" in group.attrs:
+            return kp
         size = tuple(int(x) for x in np.asarray(group["image_size"][()]).reshape(-1)[:2]) \
             if "image_size" in group and np.size(group["image_size"]) >= 2 else None
         path = pair.extra.get(f"path_{v}")
-        header = image_header(path) if path and "fviz_settings" not in group.attrs else None
-        shown = pair.size_a if v == "a" else pair.size_b
-        if header is None or header.orientation == 1:
-            if size is not None and size != tuple(shown) and size[::-1] == tuple(shown):
-                raise FvizError(f"--matches {self.features}: image {name} is {size[0]}x{size[1]} in hloc's image_size, "
-                                f"{shown[0]}x{shown[1]} here: turned (a pairs file's rot?)")
-            return kp
-        o = header.orientation
+        header = image_header(path) if path else None
+        k = int(pair.extra.get("rot", (0, 0))["ab".index(v)]) % 4
+        shown = tuple(pair.size_a if v == "a" else pair.size_b)
+        o = header.orientation if header is not None else 1
+        upright = shown[::-1] if k % 2 else shown  # the image before the pairs file's rot
+        stored = upright[::-1] if o >= 5 else upright
         turn = EXIF_TURNS.get(o, f"mirrored (EXIF orientation {o})")
         if size is None:
-            pair.notes.append(f"image {name} has EXIF orientation {o} ({turn}), applied by fviz; the hloc file gives no "
-                           "image_size to tell whether its keypoints were taken before it (hloc's do)")
-            return kp
-        if size != (header.width, header.height):
-            return kp  # not the stored image's keypoints: check_inside or the matches judge them
-        A = exif_map(o, header.width, header.height)
-        pair.notes.append(f"hloc's keypoints of {name} turned by its EXIF orientation {o} ({turn}): hloc reads images "
-                       "without it, fviz with it")
+            if o != 1:
+                pair.notes.append(f"image {name} has EXIF orientation {o} ({turn}), applied by fviz; the hloc file gives "
+                                  "no image_size to tell whether its keypoints were taken before it (hloc's do)")
+                return kp
+        elif size != stored:
+            if size == shown and o == 1:
+                return kp  # keypoints of the image as shown (a tool that turned it first)
+            raise FvizError(f"--matches {self.features}: image {name} is {size[0]}x{size[1]} in its image_size, "
+                            f"{stored[0]}x{stored[1]} as stored here{f' (EXIF orientation {o})' if o != 1 else ''}: "
+                            "keypoints of another image, or of a resized one")
+        A = rotation_map(k, *upright) @ exif_map(o, *stored)
+        why = [f"its EXIF orientation {o} ({turn}), which hloc ignores" if o != 1 else "",
+               f"the pairs file's rot {k}" if k else ""]
+        if any(why):
+            pair.notes.append(f"hloc's keypoints of {name} turned by {' and '.join(w for w in why if w)}")
         return kp @ A[:2, :2].T + A[:2, 2]
 
 

@@ -277,7 +277,7 @@ def make_pair(pid: PairId, path_a: Path, path_b: Path, K_a=None, K_b=None, T_ab=
                 notes.append(f"the principal point of image {v} ({K[0, 2]:.0f}, {K[1, 2]:.0f}) lies far from the "
                              f"{w}x{h} image: is K at this image's resolution?")
     return Pair(id=pid, image_a=image_a, image_b=image_b, gt_accuracy_px=gt_accuracy_px, notes=notes,
-                extra={"path_a": str(path_a), "path_b": str(path_b)}, **gt)
+                extra={"path_a": str(path_a), "path_b": str(path_b), "rot": tuple(rot)}, **gt)
 
 
 def two_images(image_a: str, image_b: str, K: str | None = None, K_a: str | None = None, K_b: str | None = None,
