@@ -171,10 +171,18 @@ def check_binary_model(model: Path) -> None:
         f.skip(24 * n, f"the points of image {name}")
     f.end()
     f = _Bin(model / "points3D.bin")
-    for i in range(f.count("3D points", 51)):
-        (point_id,) = f.read("Q3d3Bd", f"3D point {i + 1}")[:1]
-        n = f.count(f"observations of 3D point {point_id}", 8)
-        f.skip(8 * n, f"the track of 3D point {point_id}")
+    n_points = f.count("3D points", 51)
+    u64, data, pos, size = f._struct.Struct("<Q").unpack_from, f.data, f.pos, len(f.data)
+    for i in range(n_points):  # POINT3D_ID X Y Z R G B ERROR TRACK_LENGTH (51 bytes), then 8 bytes per observation
+        if pos + 51 > size:
+            raise FvizError(f"{f.path}: cut short or not a COLMAP binary file (3D point {i + 1} of {n_points} runs past "
+                            f"its {size} bytes)")
+        (track,) = u64(data, pos + 43)
+        if 8 * track > size - pos - 51:
+            raise FvizError(f"{f.path}: {track} observations of 3D point {u64(data, pos)[0]} cannot fit in its {size} "
+                            "bytes (cut short, or not a COLMAP binary file)")
+        pos += 51 + 8 * track
+    f.pos = pos
     f.end()
 
 
