@@ -468,3 +468,37 @@ def test_hloc_image_size_of_another_image_is_refused(hloc_pair, tmp_path):
     path = write_hloc(tmp_path, kps, np.array([0, 1, -1, 2, -1, 3]), sizes={"a.png": (640, 480), "b.png": (320, 240)})
     with pytest.raises(FvizError, match=r"features.h5: image a.png is 640x480 in its image_size, 320x240 as stored here"):
         HlocReader(path).for_pair(pair)
+
+
+@pytest.fixture(scope="module")
+def fountain_hloc(tmp_path_factory):
+    """fountain 0004 / 0005 at 768x512 with hloc-style SIFT matches of their stored pixels (ratio test 0.8)."""
+    import cv2
+
+    d = tmp_path_factory.mktemp("hloc_exif")
+    imgs = [cv2.resize(cv2.imread(str(fountain() / "images" / n), cv2.IMREAD_GRAYSCALE), (768, 512)) for n in ("0004.jpg", "0005.jpg")]
+    sift = cv2.SIFT_create(nfeatures=1000)
+    (ka, da), (kb, db) = (sift.detectAndCompute(im, None) for im in imgs)
+    m0 = -np.ones(len(ka), int)
+    for x, y in cv2.BFMatcher().knnMatch(da, db, k=2):
+        if x.distance < 0.8 * y.distance:
+            m0[x.queryIdx] = x.trainIdx
+    kps = {"a.jpg": np.array([k.pt for k in ka]), "b.jpg": np.array([k.pt for k in kb])}
+    return d, imgs, kps, m0
+
+
+@pytest.mark.parametrize("orientation", [1, 3, 6])
+def test_hloc_matches_of_an_exif_rotated_image_find_as_many_inliers_as_unrotated(fountain_hloc, tmp_path, orientation):
+    import json
+
+    _, imgs, kps, m0 = fountain_hloc
+    exif_jpeg(imgs[0], orientation, tmp_path / "a.jpg")
+    exif_jpeg(imgs[1], 1, tmp_path / "b.jpg")
+    path = write_hloc(tmp_path, kps, m0, sizes={"a.jpg": (768, 512), "b.jpg": (768, 512)})
+    proc = run_fviz("inspect", "pair", "--image-a", tmp_path / "a.jpg", "--image-b", tmp_path / "b.jpg", "--matches", path,
+                    "-e", "magsac", "--out", tmp_path / "p.rrd", "--json", timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    doc = json.loads(proc.stdout)
+    inliers = doc["estimators"][0]["metrics"]["n_inliers"]
+    assert doc["n_matches"] == (m0 >= 0).sum() and inliers > 0.8 * doc["n_matches"]  # unturned: 351 of 394
+    assert (f"EXIF orientation {orientation}" in proc.stderr) == (orientation != 1)
