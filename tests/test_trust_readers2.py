@@ -502,3 +502,13 @@ def test_hloc_matches_of_an_exif_rotated_image_find_as_many_inliers_as_unrotated
     inliers = doc["estimators"][0]["metrics"]["n_inliers"]
     assert doc["n_matches"] == (m0 >= 0).sum() and inliers > 0.8 * doc["n_matches"]  # unturned: 351 of 394
     assert (f"EXIF orientation {orientation}" in proc.stderr) == (orientation != 1)
+
+
+def test_hloc_keypoints_whose_image_size_is_the_shown_one_are_not_turned(tmp_path):
+    exif_jpeg(textured(240, 320), 6, tmp_path / "a.jpg")  # stored 320x240, shown 240x320
+    exif_jpeg(textured(240, 320, 1), 1, tmp_path / "b.jpg")
+    kps = {"a.jpg": np.array([[200.0, 300.0], [30.0, 40.0]]), "b.jpg": np.array([[11.0, 21.0], [31.0, 41.0]])}
+    path = write_hloc(tmp_path, kps, np.array([0, 1]), sizes={"a.jpg": (240, 320), "b.jpg": (320, 240)})
+    pair = two_images(str(tmp_path / "a.jpg"), str(tmp_path / "b.jpg"))
+    np.testing.assert_array_equal(HlocReader(path).for_pair(pair).x_a, kps["a.jpg"])
+    assert any("taken as of the image turned by its EXIF orientation 6" in n for n in pair.notes)

@@ -8,6 +8,10 @@ Camera models: SIMPLE_PINHOLE and PINHOLE directly; a model with distortion whos
 all zero is read as its pinhole part; any other distortion is refused with one line (an F relates
 undistorted pixels: run ``colmap image_undistorter`` and give its undistorted model and images).
 
+Checked before use: a binary model is walked within its files' sizes (:func:`check_binary_model`: a cut or
+garbage file is one line, never pycolmap's hang), focal lengths finite and > 0, quaternions of unit length,
+a camera's width x height that of its images (else K is at another resolution).
+
 Pairs: those of ``--pairs FILE`` (only the names of each line are used), else the images sharing at least
 ``--min-shared`` 3D points (co-visibility), else, when the model has no 3D points, every pair of registered
 images; in image-id order.

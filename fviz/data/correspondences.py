@@ -4,12 +4,16 @@ fviz's convention (OpenCV: origin at the centre of the top-left pixel).
 
 ``--matches`` formats:
 
-- hloc: ``matches.h5`` with ``features.h5`` beside it (or the one other .h5 in that folder holding
-  keypoints): per image ``features[name]["keypoints"]`` (N, 2); per pair ``matches[pair]["matches0"]``
-  (N0,), -1 = unmatched, and ``matching_scores0``; ``pair`` is hloc's ``names_to_pair`` (names with "/" as
-  "-", joined by "/", or the older "_"), either order. hloc keeps keypoints with OpenCV's origin and adds
-  0.5 itself when it hands them to COLMAP (hloc/triangulation.py ``import_features``): no shift here
-  (:data:`HLOC_PIXEL_SHIFT`).
+- hloc: a matches file with its features file beside it: ``FEATURES.h5`` for hloc's
+  ``FEATURES_MATCHER_PAIRS.h5`` (hloc's names), else ``features.h5``, else the one other .h5 in that folder
+  holding keypoints: per image ``features[name]["keypoints"]`` (N, 2); per pair ``matches[pair]["matches0"]``
+  (N0,) integer indices, -1 = unmatched, and ``matching_scores0`` (N0,); ``pair`` is hloc's
+  ``names_to_pair`` (names with "/" as "-", joined by "/", or the older "_"), either order. hloc keeps
+  keypoints with OpenCV's origin and adds 0.5 itself when it hands them to COLMAP (hloc/triangulation.py
+  ``import_features``): no shift here (:data:`HLOC_PIXEL_SHIFT`). hloc reads an image as stored (no EXIF
+  orientation; ``image_size`` is the stored width, height) and knows no pairs file's rot; fviz shows the
+  image with both applied, so hloc's keypoints are turned with them (a note says so). fviz's own files
+  (a run's features.h5) hold keypoints of the shown image.
 - SuperGlue ``*_matches.npz`` (``keypoints0``, ``keypoints1``, ``matches`` (N0,) -1 = unmatched,
   ``match_confidence``), one file, or a folder of ``{stem0}_{stem1}_matches.npz`` (match_pairs.py's names).
   Keypoints must be at the images' resolution (match_pairs.py resizes to 640x480 unless ``--resize -1``).
@@ -404,8 +408,11 @@ class HlocReader:
                                   "no image_size to tell whether its keypoints were taken before it (hloc's do)")
                 return kp
         elif size != stored:
-            if size == shown and o == 1:
-                return kp  # keypoints of the image as shown (a tool that turned it first)
+            if size == shown:  # keypoints of the image as fviz shows it (a tool that applied the orientation)
+                if o != 1:
+                    pair.notes.append(f"the keypoints of {name} are taken as of the image turned by its EXIF orientation "
+                                      f"{o}: their image_size is {size[0]}x{size[1]}, as shown, not as stored")
+                return kp
             raise FvizError(f"--matches {self.features}: image {name} is {size[0]}x{size[1]} in its image_size, "
                             f"{stored[0]}x{stored[1]} as stored here{f' (EXIF orientation {o})' if o != 1 else ''}: "
                             "keypoints of another image, or of a resized one")

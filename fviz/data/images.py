@@ -6,6 +6,11 @@ images are read with OpenCV, EXIF orientation applied (as OpenCV's IMREAD_COLOR 
 and F with it (:func:`rotation_map`). Ground truth, each optional: intrinsics K (at the image's resolution),
 a relative pose T_ab (x_b = R x_a + t; F then follows in closed form, F = K_b^-T [t]x R K_a^-1) or an F.
 Pixel coordinates are OpenCV's (origin at the centre of the top-left pixel).
+
+Before decoding, a PNG's or JPEG's header is read (:func:`image_header`): an image of more than
+:data:`MAX_IMAGE_PIXELS` is refused (a decompression bomb); a JPEG without its end marker (a cut file, whose
+missing part OpenCV decodes as flat grey) is a note; a 16-bit PNG is scaled to 8 bits by its largest
+sample (OpenCV's 8-bit read keeps the high byte: 12-bit data would be nearly black), with a note.
 """
 
 from __future__ import annotations
