@@ -512,3 +512,11 @@ def test_hloc_keypoints_whose_image_size_is_the_shown_one_are_not_turned(tmp_pat
     pair = two_images(str(tmp_path / "a.jpg"), str(tmp_path / "b.jpg"))
     np.testing.assert_array_equal(HlocReader(path).for_pair(pair).x_a, kps["a.jpg"])
     assert any("taken as of the image turned by its EXIF orientation 6" in n for n in pair.notes)
+
+
+def test_hloc_keypoints_of_the_wrong_shape_are_named(hloc_pair, tmp_path):
+    pair, kps = hloc_pair
+    kps["a.png"] = np.c_[kps["a.png"], np.ones(6)]  # (N, 3)
+    path = write_hloc(tmp_path, kps, np.array([0, 1, -1, 2, -1, 3]))
+    with pytest.raises(FvizError, match=r"features.h5: keypoints of image a.png are float64 \(6, 3\), expected numbers"):
+        HlocReader(path).for_pair(pair)

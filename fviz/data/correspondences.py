@@ -363,8 +363,11 @@ class HlocReader:
         for n, v in zip(names, "ba" if reverse else "ab"):
             if n not in ff or "keypoints" not in ff[n]:
                 raise FvizError(f"--matches {self.features}: no keypoints of image {n}")
-            kp = np.asarray(ff[n]["keypoints"][()], float) - HLOC_PIXEL_SHIFT
-            kps.append(self._shown(kp, ff[n], n, pair, v))
+            kp = np.asarray(ff[n]["keypoints"][()])
+            if not (np.issubdtype(kp.dtype, np.number) and kp.ndim == 2 and kp.shape[1] == 2):
+                raise FvizError(f"--matches {self.features}: keypoints of image {n} are {kp.dtype} {kp.shape}, expected "
+                                "numbers (N, 2)")
+            kps.append(self._shown(kp.astype(float) - HLOC_PIXEL_SHIFT, ff[n], n, pair, v))
         g = mf[key]
         scores = g["matching_scores0"][()] if "matching_scores0" in g else None
         c = from_match_vector(kps[0], kps[1], g["matches0"][()], scores, where)
@@ -379,8 +382,7 @@ class HlocReader:
             path = pair.extra.get(f"path_{v}")
             header = image_header(path) if path else None
             if header is not None and header.orientation != 1:
-                return (f" (image {v} has EXIF orientation {header.orientation}, which fviz applies and hloc does not: "
-                        "without image_size in the features file fviz cannot tell the keypoints' frame)")
+                return f" (image {v} has EXIF orientation {header.orientation}, which fviz applies and hloc does not)"
         return ""
 
     def _shown(self, kp: np.ndarray, group, name: str, pair, v: str) -> np.ndarray:

@@ -70,7 +70,10 @@ def image_header(path: str | Path) -> ImageHeader | None:
                 length = struct.unpack(">H", f.read(2) or b"\0\0")[0]
                 body = f.read(length - 2)
                 if kind == 0xE1 and body[:6] == b"Exif\0\0":
-                    orientation = _exif_orientation(body[6:]) or orientation
+                    try:
+                        orientation = _exif_orientation(body[6:]) or orientation
+                    except (struct.error, IndexError):  # a broken EXIF block: OpenCV ignores it too
+                        pass
                 elif kind in (0xC0, 0xC1, 0xC2, 0xC3, 0xC5, 0xC6, 0xC7, 0xC9, 0xCA, 0xCB, 0xCD, 0xCE, 0xCF) and len(body) >= 5:
                     h, w = struct.unpack(">HH", body[1:5])
                     size = (w, h)
@@ -133,6 +136,7 @@ def read_user_image(path: str | Path, what: str = "image", notes: list[str] | No
         if img is not None and img.dtype == np.uint16:
             top = int(img.max())
             img = (img.astype(np.float64) * (255.0 / max(top, 1))).round().astype(np.uint8)
+            img = img[..., 0] if img.ndim == 3 and img.shape[2] == 2 else img  # gray and alpha
             img = cv2.cvtColor(img, cv2.COLOR_GRAY2BGR) if img.ndim == 2 else img[..., :3]
             notes.append(f"{what} {path.name} has 16-bit samples (largest {top}): scaled to 8 bits by that largest value")
     else:
