@@ -89,7 +89,11 @@ def test_the_cache_holds_opencvs_detection_in_hlocs_layout(run, kitti_root):
             kp = np.array([k.pt for k in kps])
             assert g["keypoints"].dtype == np.float32 and g["descriptors"].shape == (128, len(kps))
             np.testing.assert_array_equal(g["keypoints"][()], kp)  # OpenCV's origin, as hloc keeps keypoints
-            np.testing.assert_array_equal(g["descriptors"][()].T, desc)
+            unit = desc / np.linalg.norm(desc.astype(np.float64), axis=1, keepdims=True)  # hloc's extractors write them unit
+            np.testing.assert_allclose(g["descriptors"][()].T, unit, atol=1e-6)
+            np.testing.assert_allclose(np.linalg.norm(g["descriptors"][()].astype(np.float64), axis=0), 1.0, atol=1e-5)
+            restored = np.rint(g["descriptors"][()].T.astype(np.float64) * g["descriptor_norms"][()][:, None])
+            np.testing.assert_array_equal(restored, desc)  # OpenCV's whole-number SIFT, restored exactly
             np.testing.assert_array_equal(g["scores"][()], np.array([k.response for k in kps], np.float32))
             assert list(g["image_size"][()]) == [gray.shape[1], gray.shape[0]]
             fresh[frame] = Features(kp, desc)

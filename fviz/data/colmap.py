@@ -8,6 +8,10 @@ Camera models: SIMPLE_PINHOLE and PINHOLE directly; a model with distortion whos
 all zero is read as its pinhole part; any other distortion is refused with one line (an F relates
 undistorted pixels: run ``colmap image_undistorter`` and give its undistorted model and images).
 
+Checked before use: a binary model is walked within its files' sizes (:func:`check_binary_model`: a cut or
+garbage file is one line, never pycolmap's hang), focal lengths finite and > 0, quaternions of unit length,
+a camera's width x height that of its images (else K is at another resolution).
+
 Pairs: those of ``--pairs FILE`` (only the names of each line are used), else the images sharing at least
 ``--min-shared`` 3D points (co-visibility), else, when the model has no 3D points, every pair of registered
 images; in image-id order.
@@ -43,6 +47,8 @@ class View:
     name: str
     K: np.ndarray
     T: np.ndarray
+    size: tuple[int, int] = (0, 0)  # the camera's width, height
+    camera_id: int = 0
 
 
 def _check_model_dir(model: Path) -> str:
@@ -93,6 +99,97 @@ def _is_float(v: str) -> bool:
         return False
 
 
+class _Bin:
+    """A bounded reader of one binary model file: each read checks that the bytes are there, each count that
+    the file can hold it (pycolmap reads past the end of a cut file or loops on a garbage count)."""
+
+    def __init__(self, path: Path):
+        import struct
+
+        self.path, self.data, self.pos, self._struct = path, path.read_bytes(), 0, struct
+
+    def read(self, fmt: str, what: str) -> tuple:
+        size = self._struct.calcsize("<" + fmt)
+        if self.pos + size > len(self.data):
+            raise FvizError(f"{self.path}: cut short or not a COLMAP binary file ({what} runs past its {len(self.data)} bytes)")
+        out = self._struct.unpack_from("<" + fmt, self.data, self.pos)
+        self.pos += size
+        return out
+
+    def count(self, what: str, min_bytes: int) -> int:
+        (n,) = self.read("Q", f"the number of {what}")
+        if n * min_bytes > len(self.data) - self.pos:
+            raise FvizError(f"{self.path}: {n} {what} cannot fit in its {len(self.data)} bytes (cut short, or not a "
+                            "COLMAP binary file)")
+        return n
+
+    def skip(self, n: int, what: str) -> None:
+        if self.pos + n > len(self.data):
+            raise FvizError(f"{self.path}: cut short or not a COLMAP binary file ({what} runs past its {len(self.data)} bytes)")
+        self.pos += n
+
+    def name(self, what: str) -> str:
+        end = self.data.find(b"\0", self.pos)
+        if end < 0:
+            raise FvizError(f"{self.path}: cut short or not a COLMAP binary file ({what} has no end)")
+        raw, self.pos = self.data[self.pos:end], end + 1
+        return raw.decode("utf-8", "replace")
+
+    def end(self) -> None:
+        if self.pos != len(self.data):
+            raise FvizError(f"{self.path}: {len(self.data) - self.pos} bytes after the last entry (not a COLMAP binary "
+                            "file of this layout)")
+
+
+def _model_params() -> dict[int, int]:
+    """COLMAP's camera model ids -> their number of parameters (pycolmap's own table)."""
+    import pycolmap
+
+    out = {}
+    create = getattr(pycolmap.Camera, "create_from_model_id", None) or pycolmap.Camera.create
+    for name, mid in pycolmap.CameraModelId.__members__.items():
+        if int(mid) >= 0:
+            out[int(mid)] = len(create(1, mid, 1.0, 10, 10).params)
+    return out
+
+
+def check_binary_model(model: Path) -> None:
+    """Walk cameras.bin, images.bin and points3D.bin within their sizes (COLMAP's reconstruction_io_binary
+    layout), so that a cut or garbage file is one line naming it, never a hang or a crash."""
+    params = _model_params()
+    f = _Bin(model / "cameras.bin")
+    for i in range(f.count("cameras", 24)):
+        camera_id, model_id, width, height = f.read("IiQQ", f"camera {i + 1}")
+        if model_id not in params:
+            raise FvizError(f"{f.path}: camera {camera_id} has model id {model_id}, not a COLMAP camera model")
+        if not (0 < width < 1 << 20 and 0 < height < 1 << 20):
+            raise FvizError(f"{f.path}: camera {camera_id} is {width}x{height} pixels (not a COLMAP binary file?)")
+        f.skip(8 * params[model_id], f"camera {camera_id}'s parameters")
+    f.end()
+    f = _Bin(model / "images.bin")
+    for i in range(f.count("images", 69)):
+        (image_id,) = f.read("I", f"image {i + 1}")
+        f.read("7dI", f"image {image_id}'s pose and camera")
+        name = f.name(f"image {image_id}'s name")
+        n = f.count(f"points of image {name}", 24)
+        f.skip(24 * n, f"the points of image {name}")
+    f.end()
+    f = _Bin(model / "points3D.bin")
+    n_points = f.count("3D points", 51)
+    u64, data, pos, size = f._struct.Struct("<Q").unpack_from, f.data, f.pos, len(f.data)
+    for i in range(n_points):  # POINT3D_ID X Y Z R G B ERROR TRACK_LENGTH (51 bytes), then 8 bytes per observation
+        if pos + 51 > size:
+            raise FvizError(f"{f.path}: cut short or not a COLMAP binary file (3D point {i + 1} of {n_points} runs past "
+                            f"its {size} bytes)")
+        (track,) = u64(data, pos + 43)
+        if 8 * track > size - pos - 51:
+            raise FvizError(f"{f.path}: {track} observations of 3D point {u64(data, pos)[0]} cannot fit in its {size} "
+                            "bytes (cut short, or not a COLMAP binary file)")
+        pos += 51 + 8 * track
+    f.pos = pos
+    f.end()
+
+
 def pinhole_K(camera, where: str) -> np.ndarray:
     """K of a pinhole camera in OpenCV's pixel origin; distortion refused (unless all zero)."""
     model = camera.model.name
@@ -105,6 +202,11 @@ def pinhole_K(camera, where: str) -> np.ndarray:
         raise FvizError(f"{where}: camera model {model} has distortion ({', '.join(f'{v:g}' for v in params[extra])}); "
                         "an F relates undistorted pixels: undistort with 'colmap image_undistorter' and give its model and images")
     K = np.asarray(camera.calibration_matrix(), float).copy()
+    if not (np.isfinite(params).all() and K[0, 0] > 0 and K[1, 1] > 0):
+        raise FvizError(f"{where}: focal length {K[0, 0]:g}, {K[1, 1]:g} px (params {', '.join(f'{v:g}' for v in params)}): "
+                        "a camera's focal lengths must be finite and > 0")
+    if not (camera.width > 0 and camera.height > 0):
+        raise FvizError(f"{where}: the camera is {camera.width}x{camera.height} pixels")
     K[0, 2] += PIXEL_ORIGIN_SHIFT
     K[1, 2] += PIXEL_ORIGIN_SHIFT
     return K
@@ -117,6 +219,8 @@ def read_model(model: str | Path):
     if ext == "txt":
         check_cameras_txt(model / "cameras.txt")
         check_images_txt(model / "images.txt")
+    else:
+        check_binary_model(model)
     import pycolmap
 
     try:
@@ -136,9 +240,14 @@ def views(rec, model: Path) -> dict[int, View]:
         cam = rec.cameras[im.camera_id]
         K = pinhole_K(cam, f"--colmap {model}: camera {im.camera_id} (image {im.name})")
         cfw = im.cam_from_world() if callable(im.cam_from_world) else im.cam_from_world
+        q, t = np.asarray(cfw.rotation.quat, float), np.asarray(cfw.translation, float)
+        if not (np.isfinite(q).all() and abs(np.linalg.norm(q) - 1) < 1e-3 and np.isfinite(t).all()):
+            raise FvizError(f"--colmap {model}: image {image_id} ({im.name}): its pose (quaternion QW QX QY QZ "
+                            f"{q[3]:g} {q[0]:g} {q[1]:g} {q[2]:g}, translation {t[0]:g} {t[1]:g} {t[2]:g}) is not a rotation "
+                            "of unit quaternion and a finite translation")
         T = np.eye(4)
         T[:3] = np.asarray(cfw.matrix(), float)
-        out[image_id] = View(image_id, im.name, K, T)
+        out[image_id] = View(image_id, im.name, K, T, (int(cam.width), int(cam.height)), im.camera_id)
     if not out:
         raise FvizError(f"--colmap {model}: no registered image")
     return out
@@ -232,9 +341,16 @@ class ColmapSource:
 
     def load(self, pid: PairId) -> Pair:
         va, vb, T_ab = self._motion(pid)
-        return make_pair(pid, self.images / va.name, self.images / vb.name, va.K, vb.K, T_ab, None,
+        pair = make_pair(pid, self.images / va.name, self.images / vb.name, va.K, vb.K, T_ab, None,
                          what=f"--colmap {self.model}: images {va.name}, {vb.name}",
                          what_K=(f"--colmap {self.model}: camera of {va.name}", f"--colmap {self.model}: camera of {vb.name}"))
+        for v, size in ((va, pair.size_a), (vb, pair.size_b)):
+            if v.size != (0, 0) and tuple(size) != v.size:
+                turned = " (turned: an EXIF orientation COLMAP did not apply?)" if tuple(size) == v.size[::-1] else ""
+                raise FvizError(f"--colmap {self.model}: camera {v.camera_id} is {v.size[0]}x{v.size[1]} but its image "
+                                f"{self.images / v.name} is {size[0]}x{size[1]}{turned}: give the images the model was made "
+                                "from (its K is at their resolution)")
+        return pair
 
     def ground_truth(self, pid: PairId) -> np.ndarray:
         va, vb, T = self._motion(pid)

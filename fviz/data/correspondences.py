@@ -4,12 +4,16 @@ fviz's convention (OpenCV: origin at the centre of the top-left pixel).
 
 ``--matches`` formats:
 
-- hloc: ``matches.h5`` with ``features.h5`` beside it (or the one other .h5 in that folder holding
-  keypoints): per image ``features[name]["keypoints"]`` (N, 2); per pair ``matches[pair]["matches0"]``
-  (N0,), -1 = unmatched, and ``matching_scores0``; ``pair`` is hloc's ``names_to_pair`` (names with "/" as
-  "-", joined by "/", or the older "_"), either order. hloc keeps keypoints with OpenCV's origin and adds
-  0.5 itself when it hands them to COLMAP (hloc/triangulation.py ``import_features``): no shift here
-  (:data:`HLOC_PIXEL_SHIFT`).
+- hloc: a matches file with its features file beside it: ``FEATURES.h5`` for hloc's
+  ``FEATURES_MATCHER_PAIRS.h5`` (hloc's names), else ``features.h5``, else the one other .h5 in that folder
+  holding keypoints: per image ``features[name]["keypoints"]`` (N, 2); per pair ``matches[pair]["matches0"]``
+  (N0,) integer indices, -1 = unmatched, and ``matching_scores0`` (N0,); ``pair`` is hloc's
+  ``names_to_pair`` (names with "/" as "-", joined by "/", or the older "_"), either order. hloc keeps
+  keypoints with OpenCV's origin and adds 0.5 itself when it hands them to COLMAP (hloc/triangulation.py
+  ``import_features``): no shift here (:data:`HLOC_PIXEL_SHIFT`). hloc reads an image as stored (no EXIF
+  orientation; ``image_size`` is the stored width, height) and knows no pairs file's rot; fviz shows the
+  image with both applied, so hloc's keypoints are turned with them (a note says so). fviz's own files
+  (a run's features.h5) hold keypoints of the shown image.
 - SuperGlue ``*_matches.npz`` (``keypoints0``, ``keypoints1``, ``matches`` (N0,) -1 = unmatched,
   ``match_confidence``), one file, or a folder of ``{stem0}_{stem1}_matches.npz`` (match_pairs.py's names).
   Keypoints must be at the images' resolution (match_pairs.py resizes to 640x480 unless ``--resize -1``).
@@ -151,7 +155,8 @@ class TableReader:
 
 
 def _plain_npz(path: Path, what: str) -> Correspondences:
-    with _npz(path, what) as z:
+    with _npz(path, what) as npz:
+        z = _npz_arrays(npz, path, what, tuple(npz.files))
         if "x_a" in z and "x_b" in z:
             x_a, x_b = np.asarray(z["x_a"], float), np.asarray(z["x_b"], float)
             scores = np.asarray(z["scores"], float) if "scores" in z else None
@@ -160,7 +165,7 @@ def _plain_npz(path: Path, what: str) -> Correspondences:
             x_a, x_b, scores = m[:, 0:2], m[:, 2:4], m[:, 4] if m.shape[1] == 5 else None
         else:
             raise FvizError(f"{what} {path}: expected arrays x_a, x_b (M, 2) [scores], or matches (M, 4|5), "
-                            f"or SuperGlue's keypoints0/keypoints1/matches; found {', '.join(z.files) or 'none'}")
+                            f"or SuperGlue's keypoints0/keypoints1/matches; found {', '.join(z) or 'none'}")
     if x_a.shape != x_b.shape or x_a.ndim != 2 or x_a.shape[1] != 2:
         raise FvizError(f"{what} {path}: x_a {x_a.shape} and x_b {x_b.shape} must both be (M, 2)")
     if scores is not None and scores.shape != (len(x_a),):
@@ -171,10 +176,30 @@ def _plain_npz(path: Path, what: str) -> Correspondences:
 
 
 def _npz(path: Path, what: str):
+    import zipfile
+
     try:
-        return np.load(path, allow_pickle=False)
-    except (OSError, ValueError) as exc:
-        raise FvizError(f"{what} {path}: not a readable npz ({exc})") from None
+        z = np.load(path, allow_pickle=False)
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+        raise FvizError(f"{what} {path}: not a readable npz ({' '.join(str(exc).split()) or type(exc).__name__})") from None
+    if not isinstance(z, np.lib.npyio.NpzFile):
+        raise FvizError(f"{what} {path}: a single .npy array, not an npz of named arrays")
+    return z
+
+
+def _npz_arrays(z, path: Path, what: str, keys: tuple[str, ...]) -> dict[str, np.ndarray]:
+    """The arrays ``keys`` (those present) of an open npz; a cut or corrupt member is a one-line error."""
+    import zipfile
+
+    out = {}
+    for k in keys:
+        if k in z:
+            try:
+                out[k] = z[k]
+            except (OSError, ValueError, EOFError, zipfile.BadZipFile, KeyError) as exc:
+                raise FvizError(f"{what} {path}: array '{k}' cannot be read (a cut or corrupt file? "
+                                f"{' '.join(str(exc).split())[:80] or type(exc).__name__})") from None
+    return out
 
 
 # ------------------------------------------------------------------------------ SuperGlue npz
@@ -184,16 +209,36 @@ def from_match_vector(kp0: np.ndarray, kp1: np.ndarray, matches0: np.ndarray, sc
                       where: str) -> Correspondences:
     """Keypoints (N0, 2), (N1, 2) and matches0 (N0,) (index into kp1, -1 = unmatched) -> correspondences."""
     kp0, kp1 = np.asarray(kp0, float), np.asarray(kp1, float)
-    m = np.asarray(matches0).astype(np.int64).reshape(-1)
+    raw = np.asarray(matches0).reshape(-1)
     for name, kp in (("keypoints0", kp0), ("keypoints1", kp1)):
         if kp.ndim != 2 or kp.shape[1] != 2:
             raise FvizError(f"{where}: {name} has shape {kp.shape}, expected (N, 2)")
+    if not (np.issubdtype(raw.dtype, np.integer) or np.issubdtype(raw.dtype, np.floating)):
+        raise FvizError(f"{where}: matches of type {raw.dtype}, expected integer indices")
+    if np.issubdtype(raw.dtype, np.floating):
+        bad = np.flatnonzero(~np.isfinite(raw) | (raw != np.round(raw)))
+        if len(bad):
+            raise FvizError(f"{where}: match {int(bad[0])} is {float(raw[bad[0]])}, not a keypoint index (integers, -1 = unmatched)")
+    m = raw.astype(np.int64)
     if len(m) != len(kp0):
         raise FvizError(f"{where}: {len(m)} matches for {len(kp0)} keypoints of image a")
-    if m.max(initial=-1) >= len(kp1) or m.min(initial=-1) < -1:
+    if m.min(initial=-1) < -1:
+        i = int(np.argmin(m))
+        raise FvizError(f"{where}: match {i} is {int(m[i])}: an index must be -1 (unmatched) or a keypoint of image b")
+    if m.max(initial=-1) >= len(kp1):
         raise FvizError(f"{where}: a match indexes keypoint {int(m.max())} of image b, which has {len(kp1)}")
     valid = np.flatnonzero(m >= 0)
-    scores = None if scores0 is None else np.asarray(scores0, float).reshape(-1)[valid]
+    for name, kp, idx in (("keypoints0", kp0, valid), ("keypoints1", kp1, m[valid])):
+        bad = idx[~np.isfinite(kp[idx]).all(1)]
+        if len(bad):
+            raise FvizError(f"{where}: {name}[{int(bad[0])}] is ({kp[bad[0], 0]}, {kp[bad[0], 1]}): a matched keypoint "
+                            "must be finite")
+    scores = None
+    if scores0 is not None:
+        scores0 = np.asarray(scores0, float).reshape(-1)
+        if len(scores0) != len(m):
+            raise FvizError(f"{where}: {len(scores0)} match scores for {len(m)} matches (one per keypoint of image a)")
+        scores = scores0[valid]
     return Correspondences(kp0[valid], kp1[m[valid]], scores, (len(kp0), len(kp1)), where)
 
 
@@ -212,8 +257,9 @@ class SuperGlueReader:
             missing = [k for k in self.KEYS if k not in z]
             if missing:
                 raise FvizError(f"--matches {path}: no '{missing[0]}' array (SuperGlue's keypoints0, keypoints1, matches)")
-            c = from_match_vector(z["keypoints0"], z["keypoints1"], z["matches"],
-                                  z["match_confidence"] if "match_confidence" in z else None, str(path))
+            arrays = _npz_arrays(z, path, "--matches", (*self.KEYS, "match_confidence"))
+            c = from_match_vector(arrays["keypoints0"], arrays["keypoints1"], arrays["matches"],
+                                  arrays.get("match_confidence"), str(path))
         stems = [Path(n).stem for n in image_names(pair)]
         if not self.single and path.name.startswith(f"{stems[1]}_{stems[0]}_") and stems[0] != stems[1]:
             c = c.swapped()
@@ -267,6 +313,10 @@ class HlocReader:
 
     @staticmethod
     def _features_file(path: Path) -> Path:
+        # hloc names a matches file f"{features}_{matches}_{pairs}.h5" beside its f"{features}.h5"
+        named = [p for p in path.parent.glob("*.h5") if p != path and path.stem.startswith(p.stem + "_")]
+        if named:
+            return max(named, key=lambda p: len(p.stem))
         beside = path.parent / "features.h5"
         if beside.is_file():
             return beside
@@ -286,8 +336,9 @@ class HlocReader:
                 continue
         if len(found) != 1:
             what = "none" if not found else ", ".join(p.name for p in found)
-            raise FvizError(f"--matches {path}: hloc's features file not found beside it (features.h5, or one other "
-                            f".h5 with keypoints; found {what})")
+            raise FvizError(f"--matches {path}: hloc's features file not found beside it (FEATURES.h5 beside hloc's "
+                            f"FEATURES_matches-..._PAIRS.h5, features.h5, or one other .h5 with keypoints; found {what}): "
+                            "name it so, or copy it to features.h5 beside the matches file")
         return found[0]
 
     def _open(self, path: Path):
@@ -304,21 +355,81 @@ class HlocReader:
                     for key, reverse in ((names_to_pair(a, b), False), (names_to_pair(b, a), True),
                                          (names_to_pair(a, b, "_"), False), (names_to_pair(b, a, "_"), True)):
                         if key in mf and isinstance(mf[key], self._h5.Group) and "matches0" in mf[key]:
-                            return check_inside(self._read(mf, ff, key, (b, a) if reverse else (a, b), reverse), pair)
+                            c = self._read(mf, ff, key, (b, a) if reverse else (a, b), reverse, pair)
+                            try:
+                                return check_inside(c, pair)
+                            except FvizError as exc:
+                                raise FvizError(f"{exc}{self._exif_hint(pair)}") from None
         raise FvizError(f"--matches {self.path}: no pair {names_to_pair(names_a[0], names_b[0])} (nor reversed) for "
                         f"{pair.id.name}")
 
-    def _read(self, mf, ff, key: str, names: tuple[str, str], reverse: bool) -> Correspondences:
+    def _read(self, mf, ff, key: str, names: tuple[str, str], reverse: bool, pair) -> Correspondences:
         where = f"{self.path}:{key}"
         kps = []
-        for n in names:
+        for n, v in zip(names, "ba" if reverse else "ab"):
             if n not in ff or "keypoints" not in ff[n]:
                 raise FvizError(f"--matches {self.features}: no keypoints of image {n}")
-            kps.append(ff[n]["keypoints"][()] - HLOC_PIXEL_SHIFT)
+            kp = np.asarray(ff[n]["keypoints"][()])
+            if not (np.issubdtype(kp.dtype, np.number) and kp.ndim == 2 and kp.shape[1] == 2):
+                raise FvizError(f"--matches {self.features}: keypoints of image {n} are {kp.dtype} {kp.shape}, expected "
+                                "numbers (N, 2)")
+            kps.append(self._shown(kp.astype(float) - HLOC_PIXEL_SHIFT, ff[n], n, pair, v))
         g = mf[key]
         scores = g["matching_scores0"][()] if "matching_scores0" in g else None
         c = from_match_vector(kps[0], kps[1], g["matches0"][()], scores, where)
         return c.swapped() if reverse else c
+
+    @staticmethod
+    def _exif_hint(pair) -> str:
+        """Why keypoints may lie outside an image: its EXIF orientation, when it has one."""
+        from fviz.data.images import image_header
+
+        for v in "ab":
+            path = pair.extra.get(f"path_{v}")
+            header = image_header(path) if path else None
+            if header is not None and header.orientation != 1:
+                return f" (image {v} has EXIF orientation {header.orientation}, which fviz applies and hloc does not)"
+        return ""
+
+    def _shown(self, kp: np.ndarray, group, name: str, pair, v: str) -> np.ndarray:
+        """Keypoints of image ``v`` in the image as fviz shows it. hloc reads an image as stored, ignoring its
+        EXIF orientation (its ``image_size`` is the stored width, height) and knows nothing of a pairs file's
+        rot; fviz applies both (the orientation as OpenCV does): hloc's keypoints are turned with them, with a
+        note. fviz's own files (groups with its settings attribute) hold keypoints of the shown image already."""
+        from fviz.data.images import EXIF_TURNS, exif_map, image_header, rotation_map
+
+        if "fviz_settings" in group.attrs:
+            return kp
+        size = tuple(int(x) for x in np.asarray(group["image_size"][()]).reshape(-1)[:2]) \
+            if "image_size" in group and np.size(group["image_size"]) >= 2 else None
+        path = pair.extra.get(f"path_{v}")
+        header = image_header(path) if path else None
+        k = int(pair.extra.get("rot", (0, 0))["ab".index(v)]) % 4
+        shown = tuple(pair.size_a if v == "a" else pair.size_b)
+        o = header.orientation if header is not None else 1
+        upright = shown[::-1] if k % 2 else shown  # the image before the pairs file's rot
+        stored = upright[::-1] if o >= 5 else upright
+        turn = EXIF_TURNS.get(o, f"mirrored (EXIF orientation {o})")
+        if size is None:
+            if o != 1:
+                pair.notes.append(f"image {name} has EXIF orientation {o} ({turn}), applied by fviz; the hloc file gives "
+                                  "no image_size to tell whether its keypoints were taken before it (hloc's do)")
+                return kp
+        elif size != stored:
+            if size == shown:  # keypoints of the image as fviz shows it (a tool that applied the orientation)
+                if o != 1:
+                    pair.notes.append(f"the keypoints of {name} are taken as of the image turned by its EXIF orientation "
+                                      f"{o}: their image_size is {size[0]}x{size[1]}, as shown, not as stored")
+                return kp
+            raise FvizError(f"--matches {self.features}: image {name} is {size[0]}x{size[1]} in its image_size, "
+                            f"{stored[0]}x{stored[1]} as stored here{f' (EXIF orientation {o})' if o != 1 else ''}: "
+                            "keypoints of another image, or of a resized one")
+        A = rotation_map(k, *upright) @ exif_map(o, *stored)
+        why = [f"its EXIF orientation {o} ({turn}), which hloc ignores" if o != 1 else "",
+               f"the pairs file's rot {k}" if k else ""]
+        if any(why):
+            pair.notes.append(f"hloc's keypoints of {name} turned by {' and '.join(w for w in why if w)}")
+        return kp @ A[:2, :2].T + A[:2, 2]
 
 
 # ------------------------------------------------------------------------------ opening by flag

@@ -6,11 +6,17 @@ images are read with OpenCV, EXIF orientation applied (as OpenCV's IMREAD_COLOR 
 and F with it (:func:`rotation_map`). Ground truth, each optional: intrinsics K (at the image's resolution),
 a relative pose T_ab (x_b = R x_a + t; F then follows in closed form, F = K_b^-T [t]x R K_a^-1) or an F.
 Pixel coordinates are OpenCV's (origin at the centre of the top-left pixel).
+
+Before decoding, a PNG's or JPEG's header is read (:func:`image_header`): an image of more than
+:data:`MAX_IMAGE_PIXELS` is refused (a decompression bomb); a JPEG without its end marker (a cut file, whose
+missing part OpenCV decodes as flat grey) is a note; a 16-bit PNG is scaled to 8 bits by its largest
+sample (OpenCV's 8-bit read keeps the high byte: 12-bit data would be nearly black), with a note.
 """
 
 from __future__ import annotations
 
 import os
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -20,8 +26,97 @@ from fviz.errors import FvizError
 from fviz.geometry import fundamental_from_motion, is_valid, normalize
 
 
-def read_user_image(path: str | Path, what: str = "image") -> np.ndarray:
-    """uint8 (H, W, 3) RGB (or (H, W) for a gray file), EXIF orientation applied; one-line error otherwise."""
+MAX_IMAGE_PIXELS = 200_000_000  # larger images are refused before decoding (a decompression bomb: 20000x20000 is 400 MP)
+EXIF_TURNS = {3: "turned 180 degrees", 6: "turned 90 degrees clockwise", 8: "turned 90 degrees counter-clockwise"}
+
+
+@dataclass(frozen=True)
+class ImageHeader:
+    """What a PNG or JPEG file's header says, read without decoding: format, width x height as stored (before
+    any EXIF orientation), bits per sample, EXIF orientation (1 = none), and for a JPEG whether its end
+    marker is there (a cut file has none)."""
+
+    format: str
+    width: int
+    height: int
+    bits: int = 8
+    orientation: int = 1
+    complete: bool = True
+
+
+def image_header(path: str | Path) -> ImageHeader | None:
+    """The header of a PNG or JPEG file (None for other formats or a header that cannot be parsed)."""
+    import struct
+
+    try:
+        with open(path, "rb") as f:
+            head = f.read(32)
+            if head[:8] == b"\x89PNG\r\n\x1a\n" and head[12:16] == b"IHDR":
+                w, h, bits = struct.unpack(">IIB", head[16:25])
+                return ImageHeader("png", w, h, bits)
+            if head[:2] != b"\xff\xd8":
+                return None
+            f.seek(2)
+            size, orientation = None, 1
+            while True:
+                marker = f.read(2)
+                while len(marker) == 2 and marker[0] == 0xFF and marker[1] == 0xFF:  # fill bytes
+                    marker = marker[1:] + f.read(1)
+                if len(marker) < 2 or marker[0] != 0xFF:
+                    return None if size is None else ImageHeader("jpeg", *size, 8, orientation, False)
+                kind = marker[1]
+                if kind in (0xD8, 0x01) or 0xD0 <= kind <= 0xD7:
+                    continue
+                length = struct.unpack(">H", f.read(2) or b"\0\0")[0]
+                body = f.read(length - 2)
+                if kind == 0xE1 and body[:6] == b"Exif\0\0":
+                    try:
+                        orientation = _exif_orientation(body[6:]) or orientation
+                    except (struct.error, IndexError):  # a broken EXIF block: OpenCV ignores it too
+                        pass
+                elif kind in (0xC0, 0xC1, 0xC2, 0xC3, 0xC5, 0xC6, 0xC7, 0xC9, 0xCA, 0xCB, 0xCD, 0xCE, 0xCF) and len(body) >= 5:
+                    h, w = struct.unpack(">HH", body[1:5])
+                    size = (w, h)
+                elif kind == 0xDA:  # start of scan: the entropy-coded data runs to the end marker
+                    rest = f.read()
+                    if size is None:
+                        return None
+                    # 0xFF in coded data is stuffed (FF 00) and restart markers are FF D0-D7: FF D9 is the end
+                    return ImageHeader("jpeg", *size, 8, orientation, b"\xff\xd9" in rest)
+    except (OSError, struct.error, ValueError):
+        return None
+
+
+def _exif_orientation(tiff: bytes) -> int | None:
+    """Tag 0x0112 of IFD0 of an EXIF block (a TIFF header onwards)."""
+    import struct
+
+    if tiff[:2] not in (b"II", b"MM"):
+        return None
+    e = "<" if tiff[:2] == b"II" else ">"
+    (ifd,) = struct.unpack(e + "I", tiff[4:8])
+    (n,) = struct.unpack(e + "H", tiff[ifd:ifd + 2])
+    for i in range(n):
+        entry = tiff[ifd + 2 + 12 * i: ifd + 14 + 12 * i]
+        tag, typ, _count = struct.unpack(e + "HHI", entry[:8])
+        if tag == 0x0112 and typ == 3:
+            value = struct.unpack(e + "H", entry[8:10])[0]
+            return value if 1 <= value <= 8 else None
+    return None
+
+
+def exif_map(orientation: int, width: int, height: int) -> np.ndarray:
+    """(3, 3) pixel map from a stored width x height image to it shown with its EXIF ``orientation`` (as OpenCV's
+    imread applies it): x_shown = A x_stored, OpenCV's pixel origin."""
+    w, h = width - 1.0, height - 1.0
+    maps = {1: [[1, 0, 0], [0, 1, 0]], 2: [[-1, 0, w], [0, 1, 0]], 3: [[-1, 0, w], [0, -1, h]], 4: [[1, 0, 0], [0, -1, h]],
+            5: [[0, 1, 0], [1, 0, 0]], 6: [[0, -1, h], [1, 0, 0]], 7: [[0, -1, h], [-1, 0, w]], 8: [[0, 1, 0], [-1, 0, w]]}
+    return np.array(maps.get(orientation, maps[1]) + [[0, 0, 1]], float)
+
+
+def read_user_image(path: str | Path, what: str = "image", notes: list[str] | None = None) -> np.ndarray:
+    """uint8 (H, W, 3) RGB (or (H, W) for a gray file), EXIF orientation applied; one-line error otherwise.
+    What the reading did that a user should know (a cut JPEG, 16-bit samples scaled) is added to ``notes``."""
     import cv2
 
     path = Path(path)
@@ -31,9 +126,26 @@ def read_user_image(path: str | Path, what: str = "image") -> np.ndarray:
         raise FvizError(f"{what} {path}: no such file")
     if not os.access(path, os.R_OK):
         raise FvizError(f"{what} {path}: cannot read it (permission denied)")
-    img = cv2.imread(str(path), cv2.IMREAD_COLOR)  # applies the EXIF orientation
+    notes = [] if notes is None else notes
+    header = image_header(path)
+    if header is not None and header.width * header.height > MAX_IMAGE_PIXELS:
+        raise FvizError(f"{what} {path}: {header.width}x{header.height} pixels, more than fviz decodes "
+                        f"({MAX_IMAGE_PIXELS // 1_000_000} megapixels): downscale it first")
+    if header is not None and header.bits == 16:
+        img = cv2.imread(str(path), cv2.IMREAD_ANYDEPTH | cv2.IMREAD_ANYCOLOR)
+        if img is not None and img.dtype == np.uint16:
+            top = int(img.max())
+            img = (img.astype(np.float64) * (255.0 / max(top, 1))).round().astype(np.uint8)
+            img = img[..., 0] if img.ndim == 3 and img.shape[2] == 2 else img  # gray and alpha
+            img = cv2.cvtColor(img, cv2.COLOR_GRAY2BGR) if img.ndim == 2 else img[..., :3]
+            notes.append(f"{what} {path.name} has 16-bit samples (largest {top}): scaled to 8 bits by that largest value")
+    else:
+        img = cv2.imread(str(path), cv2.IMREAD_COLOR)  # applies the EXIF orientation
     if img is None or img.size == 0:
         raise FvizError(f"{what} {path}: unreadable or not an image OpenCV can decode")
+    if header is not None and not header.complete:
+        notes.append(f"{what} {path.name}: the JPEG file is cut short (no end marker): the part after the cut is "
+                     "decoded as flat grey, where no feature is found")
     if (img[..., 0] == img[..., 1]).all() and (img[..., 1] == img[..., 2]).all():
         return img[..., 0].copy()
     return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
@@ -133,12 +245,18 @@ def ground_truth(K_a, K_b, T_ab, F_gt, what: str) -> dict:
     return out
 
 
-def rotated(image: np.ndarray, K: np.ndarray | None, k: int) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
-    """The image turned k quarter turns (np.rot90), its K (A K) and the pixel map A."""
+def rotated(image: np.ndarray, K: np.ndarray | None, k: int) -> tuple[np.ndarray, np.ndarray | None, np.ndarray, np.ndarray]:
+    """The image turned k quarter turns (np.rot90), its K, the pixel map A and the camera's turn Rc.
+
+    A K = K' Rc with K' upper-triangular (SuperGlue's ``rotate_intrinsics``: a turned camera is a camera, its
+    focal lengths on the diagonal) and Rc the turn about the optical axis (x_turned = Rc x in camera
+    coordinates; SuperGlue's ``rotate_pose_inplane``)."""
     A = rotation_map(k, image.shape[1], image.shape[0])
+    Rc = np.eye(3)
+    Rc[:2, :2] = A[:2, :2]
     if k % 4 == 0:
-        return image, K, A
-    return np.ascontiguousarray(np.rot90(image, k)), None if K is None else A @ K, A
+        return image, K, A, Rc
+    return np.ascontiguousarray(np.rot90(image, k)), None if K is None else A @ K @ Rc.T, A, Rc
 
 
 def make_pair(pid: PairId, path_a: Path, path_b: Path, K_a=None, K_b=None, T_ab=None, F_gt=None,
@@ -150,19 +268,22 @@ def make_pair(pid: PairId, path_a: Path, path_b: Path, K_a=None, K_b=None, T_ab=
     if Path(path_a).resolve() == Path(path_b).resolve():
         raise FvizError(f"{what_images or what}: image a and image b are the same file {path_a}: every F through the points fits two "
                         "copies of one image (residuals ~0, 100 % inliers say nothing); give two different images")
-    image_a, image_b = read_user_image(path_a, "image a"), read_user_image(path_b, "image b")
+    notes: list[str] = []
+    image_a, image_b = read_user_image(path_a, "image a", notes), read_user_image(path_b, "image b", notes)
     return pair_of_arrays(pid, image_a, image_b, K_a, K_b, T_ab, F_gt, rot, gt_accuracy_px, what,
-                          extra={"path_a": str(path_a), "path_b": str(path_b)}, what_K=what_K)
+                          extra={"path_a": str(path_a), "path_b": str(path_b), "rot": tuple(rot)}, what_K=what_K, notes=notes)
 
 
 def pair_of_arrays(pid: PairId, image_a: np.ndarray, image_b: np.ndarray, K_a=None, K_b=None, T_ab=None, F_gt=None,
                    rot: tuple[int, int] = (0, 0), gt_accuracy_px: float | None = None, what: str = "pair",
-                   extra: dict | None = None, what_K: tuple[str, str] | None = None) -> Pair:
+                   extra: dict | None = None, what_K: tuple[str, str] | None = None,
+                   notes: list[str] | None = None) -> Pair:
     """The Pair of two decoded images (uint8, (H, W) or (H, W, 3) RGB) and what is known of their geometry
     (see :func:`ground_truth`); ``rot`` turns them (and their cameras and F) as SuperGlue does. ``what_K``: where
-    each K came from (a flag, a file's line), named when its principal point lies outside its image."""
+    each K came from (a flag, a file's line), named when its principal point lies outside its image; ``notes``:
+    what reading the images found (a cut JPEG, 16-bit samples)."""
+    notes = list(notes or [])
     gt = ground_truth(K_a, K_b, T_ab, F_gt, what)
-    notes = []
     if image_a.ndim != image_b.ndim:
         import cv2
 
@@ -170,8 +291,10 @@ def pair_of_arrays(pid: PairId, image_a: np.ndarray, image_b: np.ndarray, K_a=No
         image_a, image_b = gray(image_a), gray(image_b)
         notes.append("one image is gray, the other colour: both are evaluated and recorded in gray")
     if any(rot):
-        image_a, gt["K_a"], A_a = rotated(image_a, gt["K_a"], rot[0])
-        image_b, gt["K_b"], A_b = rotated(image_b, gt["K_b"], rot[1])
+        image_a, gt["K_a"], A_a, Rc_a = rotated(image_a, gt["K_a"], rot[0])
+        image_b, gt["K_b"], A_b, Rc_b = rotated(image_b, gt["K_b"], rot[1])
+        if gt["R"] is not None:  # the cameras turned with their images: x_b' = Rc_b (R Rc_a^T x_a' + t)
+            gt["R"], gt["t"] = Rc_b @ gt["R"] @ Rc_a.T, Rc_b @ gt["t"]
         if gt["F_gt"] is not None:
             gt["F_gt"] = normalize(np.linalg.inv(A_b).T @ gt["F_gt"] @ np.linalg.inv(A_a), "fbn")
         notes.append(f"images turned by rot {rot[0]}, {rot[1]} (quarter turns counter-clockwise) as the pairs file says")

@@ -5,8 +5,9 @@ user can read them as hloc files (``--matches RUN/matches.h5``, or hloc's own to
     features.h5   one group per image (hloc's name: :func:`fviz.data.correspondences.hloc_name`):
                   keypoints (N, 2) float32 pixels, OpenCV's origin as hloc keeps them
                   (:data:`~fviz.data.correspondences.HLOC_PIXEL_SHIFT`), descriptors (D, N) (hloc's
-                  transposed layout; float32 SIFT, uint8 ORB / AKAZE), scores (N,) float32 (the detector's
-                  response), image_size (2,) (width, height)
+                  transposed layout; float32 SIFT of unit length as hloc's extractors write them, uint8 ORB /
+                  AKAZE), descriptor_norms (N,) (fviz's: the SIFT descriptors' own lengths, to restore them),
+                  scores (N,) float32 (the detector's response), image_size (2,) (width, height)
     matches.h5    one group per pair (hloc's ``names_to_pair``, "/" between the two names): matches0 (N_a,)
                   int32, index into b's keypoints, -1 = unmatched; matching_scores0 (N_a,) float32,
                   1 / (1 + descriptor distance), 0 where unmatched (decreasing with the distance, so that
@@ -38,6 +39,7 @@ MATCHES_FILE = "matches.h5"
 SETTINGS_ATTR, IMAGE_ATTR, KEYPOINTS_ATTR = "fviz_settings", "fviz_image", "fviz_keypoints"
 DATASET_BYTES = 8192  # HDF5's own bytes per dataset and group, at most (measured ~1-3 KB)
 FREE_MARGIN = 64 << 20  # free space the cache leaves to results.jsonl and the reports
+DESCRIPTOR_NORMS = "descriptor_norms"  # fviz's own dataset: the lengths of the float descriptors before they were made unit
 DESCRIPTOR_DIMS = {"sift": (128, np.float32), "orb": (32, np.uint8), "akaze": (61, np.uint8)}
 
 # a group fviz wrote: (file, group name, {dataset: array}, {attribute: text})
@@ -78,6 +80,11 @@ def features_entry(name: str, f: Features, image_digest: str, cfg: FeatureConfig
     data = {"keypoints": _lossless32(f.keypoints + HLOC_PIXEL_SHIFT), "descriptors": np.ascontiguousarray(desc.T),
             "scores": (f.scores if f.scores is not None else np.ones(n)).astype(np.float32),
             "image_size": np.array(size, np.int64)}
+    if np.issubdtype(desc.dtype, np.floating):  # hloc's extractors write unit-norm descriptors (its NN-ratio matcher
+        norms = np.linalg.norm(desc.astype(np.float64), axis=1)  # assumes them); OpenCV's SIFT are ~512 long
+        unit = desc / np.where(norms > 0, norms, 1.0)[:, None]
+        data["descriptors"] = np.ascontiguousarray(unit.T.astype(np.float32))
+        data[DESCRIPTOR_NORMS] = norms.astype(np.float32)
     return FEATURES_FILE, name, data, {SETTINGS_ATTR: settings(cfg, False), IMAGE_ATTR: image_digest}
 
 
@@ -151,6 +158,13 @@ class RunCache:
         if kp is None or desc is None or kp.ndim != 2 or kp.shape[1] != 2 or not np.isfinite(kp).all() \
                 or desc.shape != (dim, len(kp)) or desc.dtype != dtype or (scores is not None and scores.shape != (len(kp),)):
             return self._problem(FEATURES_FILE, "malformed (keypoints, descriptors or scores)")
+        if np.issubdtype(desc.dtype, np.floating):
+            norms = group[DESCRIPTOR_NORMS][()] if DESCRIPTOR_NORMS in group else None
+            if norms is None or norms.shape != (len(kp),) or not np.isfinite(norms).all():
+                return self._problem(FEATURES_FILE, "malformed (descriptors without their lengths)")
+            raw = desc.T.astype(np.float64) * norms[:, None].astype(np.float64)
+            whole = np.rint(raw)  # OpenCV's SIFT descriptors are whole numbers: restored exactly
+            desc = (whole if np.abs(raw - whole).max(initial=0) < 0.05 else raw).astype(dtype).T
         return Features(kp.astype(np.float64) - HLOC_PIXEL_SHIFT, np.ascontiguousarray(desc.T),
                         None if scores is None else scores.astype(np.float32), image_digest)
 
