@@ -40,6 +40,7 @@ from fviz.errors import FvizError
 
 HLOC_PIXEL_SHIFT = 0.0  # hloc's keypoints already have OpenCV's origin (see the module doc)
 MIN_GT = 8  # correspondences needed to fit F_gt (8-point)
+DEGENERATE_PLANE_FRACTION = 0.9  # of the labelled points on one homography: F_gt not determined by them
 
 
 @dataclass
@@ -460,21 +461,75 @@ def open_gt_matches(path: str | Path) -> TableReader:
     return TableReader(path, "--gt-matches", (4, 7), "{stem0}_{stem1}.txt", gt=True)
 
 
-def fit_gt(c: Correspondences, pair) -> tuple[np.ndarray, float, str]:
-    """F_gt fitted to ground-truth correspondences: OpenCV's normalized 8-point (least squares over all of
-    them, rank 2), unit norm -> (F, its own median SED (px), the note that says so)."""
-    import cv2
+def model_file(c: Correspondences) -> Path | None:
+    """The authors' model F beside a ground-truth correspondence file (kusvod2 / AdelaideRMF: ``X_pts.txt`` or
+    ``X.txt`` -> ``X_model.txt``), None when there is none."""
+    path = Path(c.path)
+    stem = path.stem.removesuffix("_pts").removesuffix("_vpts")
+    candidate = path.with_name(f"{stem}_model.txt")
+    return candidate if candidate.is_file() else None
 
-    from fviz.geometry import normalize, symmetric_epipolar_distance
+
+def read_model_f(path: Path, c: Correspondences) -> tuple[np.ndarray, bool]:
+    """(F, transposed): the 9 numbers of a model file as the F of ``x_b^T F x_a = 0``. Such files do not all share
+    fviz's convention (some hold F with ``x_a^T F x_b = 0``): the one of F and F^T that the labelled points fit
+    better (median SED) is taken, and ``transposed`` says which."""
+    from fviz.geometry import is_valid, normalize, symmetric_epipolar_distance
+
+    rows, _ = read_table(path, (3, 9), "--gt-matches model F")
+    if rows.size != 9:
+        raise FvizError(f"--gt-matches model F {path}: {rows.size} numbers, expected the 9 of a 3x3 F")
+    F = rows.reshape(3, 3)
+    if not is_valid(F):
+        raise FvizError(f"--gt-matches model F {path}: all zero or not finite")
+    F = normalize(F / np.abs(F).max(), "fbn")
+    direct, transposed = (float(np.median(symmetric_epipolar_distance(G, c.x_a, c.x_b))) for G in (F, F.T))
+    return (F.T, True) if transposed < direct else (F, False)
+
+
+REFINE_LOSS_PX = 2.0  # the Cauchy loss's scale of refined_fit: hand-labelling is good to a few pixels
+
+
+def refined_fit(x_a: np.ndarray, x_b: np.ndarray) -> np.ndarray | None:
+    """F of correspondences (N, 2) fitted on their Sampson distance, robustly, not on the 8-point's algebraic
+    error: OpenCV's normalized 8-point, then PoseLib's non-linear refinement under a Cauchy loss of scale
+    REFINE_LOSS_PX (a mislabelled point pulls little). Deterministic (no sampling). (3, 3) unit norm, or None."""
+    import cv2
+    import poselib
+
+    from fviz.geometry import normalize
+
+    F, _ = cv2.findFundamentalMat(x_a.astype(np.float64), x_b.astype(np.float64), cv2.FM_8POINT)
+    if F is None or F.shape != (3, 3):
+        return None
+    F, _ = poselib.refine_fundamental(x_a.astype(np.float64), x_b.astype(np.float64), F,
+                                      {"loss_type": "CAUCHY", "loss_scale": REFINE_LOSS_PX})
+    return normalize(F, "fbn")
+
+
+def fit_gt(c: Correspondences, pair) -> tuple[np.ndarray, float, str]:
+    """F_gt of ground-truth correspondences -> (F, their median SED to it (px), the note that says so): the
+    authors' model F when one lies beside the file (:func:`model_file`), else a Sampson-refined fit
+    (:func:`refined_fit`). Labelled points on one plane do not determine F: the note says so."""
+    from fviz.diagnose import homography_fraction
+    from fviz.geometry import symmetric_epipolar_distance
 
     if len(c.x_a) < MIN_GT:
         raise FvizError(f"--gt-matches {c.path}: {len(c.x_a)} correspondences, at least {MIN_GT} needed to fit F_gt")
-    F, _ = cv2.findFundamentalMat(c.x_a.astype(np.float64), c.x_b.astype(np.float64), cv2.FM_8POINT)
-    if F is None or F.shape != (3, 3):
-        raise FvizError(f"--gt-matches {c.path}: no F fits these correspondences (degenerate: all on a plane or a line?)")
-    F = normalize(F, "fbn")
+    model = model_file(c)
+    if model is not None:
+        F, transposed = read_model_f(model, c)
+        how = f"the authors' model F of {model}" + (" (transposed: the file's F has x_a^T F x_b = 0)" if transposed else "")
+    else:
+        F = refined_fit(c.x_a, c.x_b)
+        if F is None:
+            raise FvizError(f"--gt-matches {c.path}: no F fits these correspondences (degenerate: all on a plane or a line?)")
+        how = f"F_gt fitted to the {len(c.x_a)} ground-truth correspondences of {c.path} (8-point, then refined on their Sampson distance under a Cauchy loss)"
     sed = symmetric_epipolar_distance(F, c.x_a, c.x_b)
     med = float(np.median(sed))
-    note = (f"F_gt fitted to the {len(sed)} ground-truth correspondences of {c.path} (OpenCV's normalized 8-point, "
-            f"rank 2): their SED to it, median {med:.3g} px, max {float(sed.max()):.3g} px; the metrics are computed on them")
+    note = (f"{how}: their SED to it, median {med:.2g} px, max {float(sed.max()):.2g} px; the metrics are computed "
+            "on them")
+    if homography_fraction(c.x_a, c.x_b) >= DEGENERATE_PLANE_FRACTION:
+        note += (f"; degenerate: one homography explains at least {DEGENERATE_PLANE_FRACTION:.0%} of them (a plane): "
+                 "they do not determine F, so F_gt and every metric on them are unreliable")
     return F, med, note
