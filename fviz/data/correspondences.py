@@ -23,7 +23,9 @@ fviz's convention (OpenCV: origin at the centre of the top-left pixel).
 ``--gt-matches``: text rows ``x_a y_a x_b y_b``, or AdelaideRMF / kusvod2 ``x1 y1 1 x2 y2 1 label`` (label 0
 = outlier, left out); one file, or a folder of ``{stem0}_{stem1}.txt`` (either order), or kusvod2's ``{name}_pts.txt``
 for images ``{name}A``, ``{name}B``. Coordinates are taken in OpenCV's
-convention (subtract 1 from MATLAB's 1-based pixels first).
+convention (subtract 1 from MATLAB's 1-based pixels first). The authors' model F beside them (``X_model.txt`` for
+``X_pts.txt`` or ``X.txt``) is F_gt, in whichever convention the labels fit (:func:`read_model_f`); without one,
+F_gt is fitted on the labels' Sampson distance (:func:`refined_fit`).
 
 A bad file is one line naming the file and the line (or the HDF5 dataset).
 """
@@ -39,7 +41,7 @@ import numpy as np
 from fviz.errors import FvizError
 
 HLOC_PIXEL_SHIFT = 0.0  # hloc's keypoints already have OpenCV's origin (see the module doc)
-MIN_GT = 8  # correspondences needed to fit F_gt (8-point)
+MIN_GT = 8  # correspondences needed to fit F_gt (8 for the 8-point it starts from)
 DEGENERATE_PLANE_FRACTION = 0.9  # of the labelled points on one homography: F_gt not determined by them
 
 
