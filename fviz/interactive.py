@@ -275,3 +275,12 @@ def session_for(path, rec=None):
     rec = rec or rr.RecordingStream(app_id, recording_id=rec_id, send_properties=False)
     stamps = tuple(t for t in timelines(path) if t == L.PROBE_TIMELINE)
     return ClickSession(rec, click_pairs(path), stamps)
+
+
+def pair_fs(result, size_a: tuple[int, int], size_b: tuple[int, int]) -> PairFs:
+    """The :class:`PairFs` of an evaluated pair (:class:`fviz.evaluate.PairResult`; failed estimators left
+    out), as :func:`fviz.record.writer.log_fundamentals` stores it."""
+    ok = [r for r in result.estimators if not r.error and r.F is not None]
+    m = result.matches
+    x_a, x_b = (np.zeros((0, 2)), np.zeros((0, 2))) if m is None else (m.x_a, m.x_b)
+    return PairFs([r.name for r in ok], np.array([r.F for r in ok], float).reshape(-1, 3, 3), size_a, size_b, x_a, x_b)

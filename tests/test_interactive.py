@@ -96,3 +96,94 @@ def test_a_click_far_from_every_keypoint_has_no_match(pair):
     d = np.linalg.norm(pair.x_a - [0.0, 0.0], axis=1).min()
     assert (c.match is None) == (d > 6.0) and np.isnan(c.residuals).all() == (c.match is None)
     assert click_at(pair, far) is None
+
+
+# ------------------------------------------------------------------------- the notebook viewer, headless
+
+def _selection(path: str, position=None, instance=None) -> str:
+    """The JSON string the notebook widget sends for a click (``rerun._event`` parses it)."""
+    import json
+
+    item = {"type": "entity", "entity_path": path, "view_name": "overview"}
+    if position is not None:
+        item["position"] = list(map(float, position))
+    if instance is not None:
+        item["instance_id"] = instance
+    return json.dumps({"type": "selection_change", "application_id": "fviz-notebook", "recording_id": "r", "items": [item]})
+
+
+def _sent_chunks(viewer, tmp_path):
+    """What the widget was sent (queued: no frontend), read back as a recording: {entity: [record batches]}."""
+    from rerun.chunk import RrdReader
+
+    import warnings
+
+    blobs = [b for content, buffers in viewer._viewer._event_queue if content.get("type") == "rrd" for b in buffers]
+    out: dict[str, list] = {}
+    for k, blob in enumerate(blobs):  # each flush is a stream of its own (header first)
+        f = tmp_path / f"sent{k}.rrd"
+        f.write_bytes(bytes(blob))
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            r = RrdReader(f)
+            if not r.recordings():  # the blueprint's
+                continue
+            for ch in r.stream().to_chunks():
+                out.setdefault(ch.entity_path.strip("/"), []).append(ch.to_record_batch())
+    return out
+
+
+@pytest.fixture(scope="module")
+def evaluated(odometry):
+    from fviz.estimators.registry import get_estimator
+    from fviz.evaluate import evaluate_pair
+
+    pair = odometry.pair(3, "temporal")
+    names = ("8point", "ransac", "magsac", "lmeds", "7point")
+    return pair, evaluate_pair(pair, [(n, get_estimator(n)) for n in names])
+
+
+@pytest.mark.kitti
+def test_notebook_click_draws_the_lines_in_the_other_image(evaluated, tmp_path):
+    """fviz.notebook.show on a KITTI pair; a synthetic click (the widget's JSON) on a keypoint of image a:
+    the bytes sent to the widget hold b/click with one line per F on F x_a, in the F's colour, and the
+    partner's ring; a second click on a plain pixel of b replaces it."""
+    import fviz.notebook
+
+    pair, result = evaluated
+    v = fviz.notebook.show(pair, result)
+    m = result.matches
+    j = int(np.argmax(m.x_a[:, 0] > 300))
+    c = v.handle(_selection("/a/image", [*(m.x_a[j] + [1.0, 1.0]), 0.0]))  # beside the keypoint
+    assert c is not None and c.view == "a" and c.match == j
+    v.viewer._viewer._raw_event_callbacks[0](_selection("/a/image", [*(m.x_a[j] + [1.0, 1.0]), 0.0]))  # as the widget does
+    sent = _sent_chunks(v.viewer, tmp_path)
+    assert "b/click" in sent and "a/click" in sent and "click/text" in sent
+    rb = sent["b/click"][-1]
+    strips = rb.column("LineStrips2D:strips").to_pylist()[-1]
+    colors = rb.column("LineStrips2D:colors").to_pylist()[-1]
+    ok = [r for r in result.estimators if not r.error]
+    colours = L.estimator_colors([r.name for r in result.estimators])
+    drawn = 0
+    for r in ok:
+        line = _cv_lines(r.F, m.x_a[j], 1)
+        want = int.from_bytes(bytes([*colours[r.name], 255]), "big")
+        on = [np.asarray(s, float) for s, col in zip(strips, colors) if col == want and len(s) == 2]
+        assert on, f"{r.name}: no line in its colour"
+        ends = np.c_[on[0], np.ones(2)]
+        assert np.abs(ends @ line / np.hypot(*line[:2])).max() < 1e-2, r.name
+        drawn += 1
+    assert drawn == len(ok) >= 5
+    # the partner's ring sits around x_b
+    ring = np.asarray(strips[-1], float)
+    assert np.allclose(ring.mean(axis=0), m.x_b[j], atol=0.6)
+    # a second click, on a plain pixel of b, replaces it: lines now in a, none left in b
+    pb = np.array([200.0, 100.0])
+    far = np.linalg.norm(m.x_b - pb, axis=1).min() > 10
+    c2 = v.handle(_selection("/b/image", [*(pb + L.offset_b(pair.size_a)), 0.0]))
+    assert c2.view == "b" and (c2.match is None) == far
+    sent = _sent_chunks(v.viewer, tmp_path)
+    last_b = sent["b/click"][-1].column("LineStrips2D:strips").to_pylist()[-1]
+    assert len(last_b) == 1  # only the clicked point's ring
+    last_a = sent["a/click"][-1].column("LineStrips2D:strips").to_pylist()[-1]
+    assert len(last_a) >= len(ok) - 1 + (0 if far else 1)

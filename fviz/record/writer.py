@@ -845,18 +845,29 @@ def log_reference(rec, pair: Pair, result: PairResult, colors: Colors, sub: np.n
     return n > 0
 
 
+def pair_blueprint(pair: Pair, result: PairResult):
+    """The stored layout of one pair (inspect)."""
+    classes = match_classes(result)
+    return L.blueprint(_names(result), (pair.size_a, pair.size_b), single_pair=True,
+                       classes=classes if L.GT in classes else None, notice=suspect_notice(result.notes))
+
+
+def log_one_pair(rec, pair: Pair, result: PairResult, n_lines: int = 30, probe_steps: int = PROBE_STEPS,
+                 probe_by: str | None = None) -> None:
+    """Everything ``inspect`` records of one pair (static data, the pair at ``pair`` = ``probe`` = 0, the probe)."""
+    names = _names(result)
+    colors = L.estimator_colors(names)
+    steps = len(probe_order(result, probe_by)[:max(probe_steps, 0)])
+    log_static(rec, names)
+    rec.set_time(L.PROBE_TIMELINE, sequence=0)
+    log_pair(rec, 0, pair, result, n_lines, colors, steps)
+    log_probe(rec, 0, pair, result, steps, probe_by, colors)
+
+
 def write_pair_recording(path: str | Path, pair: Pair, result: PairResult, n_lines: int = 30,
                          probe_steps: int = PROBE_STEPS, probe_by: str | None = None) -> Path:
     """One pair, one file, with its blueprint stored (what ``fviz inspect pair`` writes)."""
-    names = _names(result)
-    colors = L.estimator_colors(names)
-    steps = len(probe_order(result, probe_by)[:max(probe_steps, 0)])  # checks --probe-by before writing
-    classes = match_classes(result)
-    bp = L.blueprint(names, (pair.size_a, pair.size_b), single_pair=True, classes=classes if L.GT in classes else None,
-                     notice=suspect_notice(result.notes))
-    with RecordingWriter(path, "fviz-inspect", bp, index=False) as w:
-        log_static(w.rec, names)
-        w.rec.set_time(L.PROBE_TIMELINE, sequence=0)
-        log_pair(w.rec, 0, pair, result, n_lines, colors, steps)
-        log_probe(w.rec, 0, pair, result, steps, probe_by, colors)
+    probe_order(result, probe_by)  # checks --probe-by before writing
+    with RecordingWriter(path, "fviz-inspect", pair_blueprint(pair, result), index=False) as w:
+        log_one_pair(w.rec, pair, result, n_lines, probe_steps, probe_by)
     return Path(path)
