@@ -120,18 +120,24 @@ def click(fs: PairFs, view: str, point, match: int | None = None, snap: bool = T
 
 
 def click_at(fs: PairFs, position, entity_path: str | None = None, instance_id: int | None = None) -> Click | None:
-    """A selection -> the click, None when it is on neither image. A selected match end (``entity_path`` a
-    ``layout.matches`` path and ``instance_id`` i: a's end of match i for i < N, b's of match i - N) wins over
-    the position; else ``position`` (root frame) is located and snapped to the nearest match end."""
+    """A selection -> the click, None when it is on neither image. ``position`` (root frame; what Rerun 0.41
+    reports for a click in a 2D view) is located and snapped to the nearest match end. A selected match end
+    (``entity_path`` a ``layout.matches`` path and ``instance_id`` i: a's end of match i for i < N, b's of match
+    i - N) is taken when there is no position, or when it lies within reach of it: Rerun reports the entity
+    hovered in the previous frame, which on a slow frame is not the one under the click (the position is)."""
     n = len(fs.x_a)
+    picked = None
     if entity_path is not None and L.matches_owner(entity_path) and instance_id is not None and 0 <= instance_id < 2 * n:
         j = instance_id % n
         view = "a" if instance_id < n else "b"
-        return click(fs, view, (fs.x_a if view == "a" else fs.x_b)[j], match=j)
-    if position is None:
-        return None
-    found = locate(position, fs.size_a, fs.size_b)
-    return None if found is None else click(fs, *found)
+        picked = view, j, (fs.x_a[j] if view == "a" else fs.x_b[j])
+    if position is not None:
+        found = locate(position, fs.size_a, fs.size_b)
+        if found is None:
+            return None
+        if picked is None or picked[0] != found[0] or np.linalg.norm(picked[2] - found[1]) > SNAP_PX * fs.scale():
+            return click(fs, *found)
+    return None if picked is None else click(fs, picked[0], picked[2], match=picked[1])
 
 
 def _ring(center: np.ndarray, radius: float, n: int = 20) -> np.ndarray:

@@ -83,11 +83,18 @@ def test_a_click_near_a_keypoint_picks_its_match_and_its_residuals(pair):
         assert _same_line(c.lines[k], la)
 
 
-def test_a_selected_keypoint_instance_wins_over_the_position(pair):
+def test_a_selected_keypoint_is_taken_unless_the_position_says_otherwise(pair):
+    """Rerun 0.41 reports the entity hovered in the previous frame with the position of the click: a stale
+    instance far from the position is ignored."""
     n = len(pair.x_a)
-    c = click_at(pair, [1.0, 1.0], "est/gt/matches", n + 3)  # b's end of match 3
+    off = L.offset_b(SIZE_A)
+    c = click_at(pair, None, "est/gt/matches", n + 3)  # b's end of match 3, no position
     assert (c.view, c.match) == ("b", 3) and np.allclose(c.point, pair.x_b[3])
-    assert click_at(pair, [1.0, 1.0], "a/image", 3).match != 3 or np.linalg.norm(pair.x_a[3] - 1) < 6
+    c = click_at(pair, pair.x_b[3] + off + [1.0, 0.0], "est/gt/matches", n + 3)
+    assert (c.view, c.match) == ("b", 3)
+    far = np.array([5.0, 5.0]) if np.linalg.norm(pair.x_a[3] - [5.0, 5.0]) > 50 else np.array([600.0, 190.0])
+    c = click_at(pair, far, "est/gt/matches", 3)  # stale: the click is far from match 3
+    assert c.view == "a" and c.match != 3 and (c.match is not None or np.allclose(c.point, far))
 
 
 def test_a_click_far_from_every_keypoint_has_no_match(pair):

@@ -213,6 +213,8 @@ def serve_clicks(path: Path, host: str = "127.0.0.1", port: int = 9876, web_port
     """Serve the clickable page until Ctrl-C, SIGTERM or SIGHUP; print its URL once it serves."""
     from fviz.viewer import check_port_free
 
+    if not Path(path).is_file():
+        raise FvizError(f"no such recording: {path}")
     if port == web_port:
         raise FvizError(f"--port and --web-port are both {port}: they need two ports")
     check_port_free(host, port, "--port")
