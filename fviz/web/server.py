@@ -229,8 +229,8 @@ def serve_clicks(path: Path, host: str = "127.0.0.1", port: int = 9876, web_port
     try:
         print(f"web viewer: {server.url}  (click a point of either image for its epipolar lines; Ctrl-C to stop)",
               flush=True)
-        while True:
-            time.sleep(3600)
+        while True:  # short naps: a signal the kernel hands to a server thread only wakes the main one at its next tick
+            time.sleep(0.2)
     except KeyboardInterrupt:
         print("web viewer stopped", file=sys.stderr)
     finally:
