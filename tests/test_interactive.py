@@ -194,3 +194,55 @@ def test_notebook_click_draws_the_lines_in_the_other_image(evaluated, tmp_path):
     assert len(last_b) == 1  # only the clicked point's ring
     last_a = sent["a/click"][-1].column("LineStrips2D:strips").to_pylist()[-1]
     assert len(last_a) >= len(ok) - 1 + (0 if far else 1)
+
+
+# ------------------------------------------------------------------------- the page's WebSocket, no browser
+
+def test_the_page_socket_sends_the_recording_and_answers_a_click_with_its_lines(tmp_path):
+    """What the browser page does, spoken by a plain WebSocket client: the recording's bytes first; a
+    selection's JSON in, the click's bytes out (b/click: one line per F through F x_a); a non-click event
+    (time) gets no answer, and the page itself and the viewer's files are served over HTTP."""
+    import json
+    import urllib.request
+    import warnings
+
+    import websocket
+    from browser import free_port, run_fviz
+    from rerun.chunk import RrdReader
+
+    from fviz.web.server import ClickServer
+
+    rec = tmp_path / "p.rrd"
+    r = run_fviz("inspect", "pair", "--synthetic", "--seed", "0", "-e", "8point", "-e", "ransac", "--out", rec, "--json")
+    assert r.returncode == 0, r.stderr
+    Fs = {e["name"]: np.array(e["F"]) for e in json.loads(r.stdout)["estimators"] if e["F"] is not None}
+    port, web_port = free_port(), free_port()
+    server = ClickServer(rec, "127.0.0.1", port, web_port).start()
+    try:
+        page = urllib.request.urlopen(f"http://127.0.0.1:{web_port}/", timeout=10).read().decode()
+        assert f":{port}/" in page and "widget.js" in page
+        head = urllib.request.urlopen(f"http://127.0.0.1:{web_port}/re_viewer_bg.wasm", timeout=10)
+        assert head.headers["Content-Type"] == "application/wasm"
+        ws = websocket.create_connection(f"ws://127.0.0.1:{port}/", timeout=30)
+        assert ws.recv() == rec.read_bytes()
+        ws.send("ready")
+        ws.send(json.dumps({"type": "time_update", "application_id": "x", "recording_id": "y", "time": 0.0}))
+        p = np.array([100.0, 80.0])
+        ws.send(_selection("/a/image", [*p, 0.0]))
+        answer = ws.recv()
+        ws.close()
+    finally:
+        server.close()
+    assert isinstance(answer, bytes) and len(server.app.timings) == 1  # the time event was not answered
+    f = tmp_path / "answer.rrd"
+    f.write_bytes(answer)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        chunks = {ch.entity_path.strip("/"): ch.to_record_batch() for ch in RrdReader(f).stream().to_chunks()}
+    strips = chunks["b/click"].column("LineStrips2D:strips").to_pylist()[-1]
+    c = server.app.pairs[0]
+    x = c.x_a[np.argmin(np.linalg.norm(c.x_a - p, axis=1))] if np.linalg.norm(c.x_a - p, axis=1).min() <= 6 else p
+    for name, F in Fs.items():
+        line = _cv_lines(F, x, 1)
+        assert any(np.abs(np.c_[np.asarray(s, float), np.ones(len(s))] @ line / np.hypot(*line[:2])).max() < 1e-2
+                   for s in strips if len(s) == 2), name

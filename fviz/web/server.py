@@ -133,6 +133,11 @@ class _Threading(socketserver.ThreadingTCPServer):
         self.address_family = socket.AF_INET6 if ":" in host else socket.AF_INET
         super().__init__((host, port), handler)
 
+    def handle_error(self, request, client_address):
+        """A page closed or reloaded mid-transfer is no error; anything else is printed as usual."""
+        if not isinstance(sys.exc_info()[1], (ConnectionError, TimeoutError)):
+            super().handle_error(request, client_address)
+
 
 class ClickApp:
     """What a page gets: the recording's bytes (and a blueprint's) first; then per event JSON string the
