@@ -113,7 +113,7 @@ def _selection(path: str, position=None, instance=None) -> str:
 
     item = {"type": "entity", "entity_path": path, "view_name": "overview"}
     if position is not None:
-        item["position"] = list(map(float, position))
+        item["position"] = [None if v is None else float(v) for v in position]  # Rerun: [x, y, null] in 2D
     if instance is not None:
         item["instance_id"] = instance
     return json.dumps({"type": "selection_change", "application_id": "fviz-notebook", "recording_id": "r", "items": [item]})
@@ -246,3 +246,33 @@ def test_the_page_socket_sends_the_recording_and_answers_a_click_with_its_lines(
         line = _cv_lines(F, x, 1)
         assert any(np.abs(np.c_[np.asarray(s, float), np.ones(len(s))] @ line / np.hypot(*line[:2])).max() < 1e-2
                    for s in strips if len(s) == 2), name
+
+
+def test_on_a_run_the_click_goes_to_the_pair_at_the_time_cursor(pair, tmp_path):
+    """Two pairs (indices 4 and 9); the time cursor moves to 9 (TimeUpdateEvent on ``pair``): the click uses
+    pair 9's F's and is logged at pair = 9; a cursor between pairs picks the pair before it."""
+    import warnings
+
+    import rerun as rr
+    from rerun._event import _viewer_event_from_json_str
+    from rerun.chunk import RrdReader
+
+    from fviz.interactive import ClickSession
+
+    other = PairFs(pair.names, pair.F[::-1], SIZE_A, SIZE_B, pair.x_a, pair.x_b)
+    rec = rr.RecordingStream("fviz-test", recording_id="run")
+    stream = rec.binary_stream()
+    s = ClickSession(rec, {4: pair, 9: other})
+    ev = '{"type": "%s", "application_id": "fviz-test", "recording_id": "run", %s}'
+    s.on_event(_viewer_event_from_json_str(ev % ("timeline_change", '"timeline": "pair", "time": 9.0')))
+    c = s.on_event(_viewer_event_from_json_str(_selection("/a/image", [50.0, 60.0, None])))
+    assert s.index == 9 and _same_line(c.lines[0], _cv_lines(other.F[0], c.point, 1))
+    s.on_event(_viewer_event_from_json_str(ev % ("time_update", '"time": 7.0')))
+    assert s.index == 4
+    f = tmp_path / "run.rrd"
+    f.write_bytes(stream.read())
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        times = [t for ch in RrdReader(f).stream().to_chunks() if ch.entity_path.strip("/") == "b/click"
+                 for t in ch.to_record_batch().column("pair").to_pylist()]
+    assert times == [9]
