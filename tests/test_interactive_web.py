@@ -128,18 +128,28 @@ def line_pixels(rgb: np.ndarray, page: Page, view: str, line: np.ndarray, color,
     return int((near(rgb, color) & inside & (d < band)).sum())
 
 
-def click_keypoint(b: Chromium, page: Page, j: int, fs=None) -> dict:
-    """Benchmark helper: click match j's end in image a; -> ms until the bytes reach the page (its clock) and
-    until the screenshot changes in image b."""
-    before = shot(b)
+def colored_in_b(rgb: np.ndarray, page: Page, size_b) -> int:
+    """Pixels of any estimator's colour inside image b on the screen."""
+    x0, y0 = page.screen("b", (-0.5, -0.5)).astype(int)
+    x1, y1 = page.screen("b", (size_b[0] - 0.5, size_b[1] - 0.5)).astype(int)
+    crop = rgb[max(y0, 0):y1, max(x0, 0):x1]
+    return int(sum(near(crop, COLORS[e]).sum() for e in ESTIMATORS))
+
+
+def click_keypoint(b: Chromium, page: Page, j: int, fs) -> dict:
+    """Benchmark helper: click match j's end in image a (after a click elsewhere in a, so that b changes);
+    -> ms from the press to the bytes reaching the page (the page's clock) and to the first screenshot with
+    more estimator colour in image b (screenshots polled: each takes a good part of that on software GL)."""
+    before = colored_in_b(shot(b), page, fs.size_b)
     evaluate(b, "window.fviz.t_received = null; window.fviz.t_press = null; "
                 "document.addEventListener('pointerdown', () => { window.fviz.t_press = performance.now(); }, {once: true, capture: true}); 0")
     t = click_answered(b, page.screen("a", fs.x_a[j]))
     page_ms = evaluate(b, "window.fviz.t_received - window.fviz.t_press")
-    while True:
-        rgb = shot(b)
-        if np.abs(rgb.astype(int) - before.astype(int)).sum(-1).astype(bool).sum() > 200:
-            return {"page_ms": page_ms, "pixels_ms": 1e3 * (time.monotonic() - t)}
+    end = time.monotonic() + budget()
+    while time.monotonic() < end:
+        if abs(colored_in_b(shot(b), page, fs.size_b) - before) > 50:
+            break
+    return {"page_ms": page_ms, "pixels_ms": 1e3 * (time.monotonic() - t)}
 
 
 def test_a_click_on_a_keypoint_draws_its_lines_in_the_other_image_and_a_second_click_replaces_them(inspected, tmp_path):
