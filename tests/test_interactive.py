@@ -276,3 +276,37 @@ def test_on_a_run_the_click_goes_to_the_pair_at_the_time_cursor(pair, tmp_path):
         times = [t for ch in RrdReader(f).stream().to_chunks() if ch.entity_path.strip("/") == "b/click"
                  for t in ch.to_record_batch().column("pair").to_pylist()]
     assert times == [9]
+
+
+@pytest.mark.kitti
+@pytest.mark.slow
+def test_the_notebook_path_runs_in_a_real_kernel(kitti_root, tmp_path):
+    """A notebook executed headless (nbclient, ipykernel): fviz.notebook.open on an inspected recording shows
+    the widget, and the widget's JSON for a click on a keypoint of b, fed as the frontend would, gives the
+    click (its match and partner)."""
+    import nbformat
+    from nbclient import NotebookClient
+
+    from browser import run_fviz
+
+    rec = tmp_path / "p.rrd"
+    r = run_fviz("inspect", "pair", "--kitti-root", kitti_root, "--sequence", "00", "--pair", "temporal", "--frame", "3",
+                 "-e", "ransac", "--out", rec)
+    assert r.returncode == 0, r.stderr
+    code = f"""
+import json, numpy as np
+import fviz.notebook
+from fviz.record import layout as L
+v = fviz.notebook.open({str(rec)!r})
+v
+fs = v.session.pairs[0]
+p = fs.x_b[10] + L.offset_b(fs.size_a)
+msg = json.dumps({{"type": "selection_change", "application_id": "a", "recording_id": "r",
+                  "items": [{{"type": "entity", "entity_path": "/b/image", "position": [float(p[0]), float(p[1]), None]}}]}})
+v.viewer._viewer._handle_custom_msg(msg, [])  # what ipywidgets does with the frontend's message
+print("CLICK", v.last.view, v.last.match, np.allclose(v.last.partner, fs.x_a[10]))
+"""
+    nb = nbformat.v4.new_notebook(cells=[nbformat.v4.new_code_cell(code)])
+    NotebookClient(nb, timeout=300, kernel_name="python3", resources={"metadata": {"path": str(tmp_path)}}).execute()
+    out = "".join(o.get("text", "") for o in nb.cells[0].outputs if o.get("output_type") == "stream")
+    assert "CLICK b 10 True" in out, nb.cells[0].outputs
