@@ -82,7 +82,7 @@ def test_open_web_binds_loopback_by_default(inspected, bind):
     extra = [] if bind is None else ["--bind", bind]
     with WebServer(path, *extra) as server:
         assert server.url.startswith(f"http://127.0.0.1:{server.web_port}/")
-        assert f"127.0.0.1:{server.port}/proxy" in server.url
+        assert f"ws://127.0.0.1:{server.port}" in server.url  # the page's WebSocket (fviz.web)
         sockets = listening(server.processes())
         ours = {(ip, port) for ip, port in sockets if port in (server.port, server.web_port)}
         want = "127.0.0.1" if bind is None else bind

@@ -119,9 +119,10 @@ def test_inspect_web_takes_ports_and_refuses_a_busy_one_before_any_work(busy_por
     assert "http://" not in r.stdout and not out.exists()
 
 
-def test_url_is_printed_once_the_viewer_serves(recording):
+@pytest.mark.parametrize("mode", ["--web", "--web-static"])
+def test_url_is_printed_once_the_viewer_serves(recording, mode):
     port, web_port = two_ports()
-    proc, url = start_web("open", str(recording), "--web", "--port", str(port), "--web-port", str(web_port))
+    proc, url = start_web("open", str(recording), mode, "--port", str(port), "--web-port", str(web_port))
     try:
         assert url.startswith(f"http://127.0.0.1:{web_port}/") and f"127.0.0.1:{port}" in url
         assert page_status(url) == 200  # no waiting: it already serves
@@ -148,11 +149,15 @@ def test_rerun_errors_lose_their_ansi_escapes(recording, busy_port):
 # ------------------------------------------------------------------------------ item 12
 
 
-def _server_dies_with_fviz(args: list[str], sig: int) -> None:
+def _server_dies_with_fviz(args: list[str], sig: int, mode: str = "--web") -> None:
+    """``--web``: fviz serves the page itself (threads, no child process); ``--web-static``: Rerun's server, a
+    child. Either way nothing serves once fviz is gone."""
     port, web_port = two_ports()
-    proc, _ = start_web(*args, "--web", "--port", str(port), "--web-port", str(web_port))
+    proc, _ = start_web(*args, mode, "--port", str(port), "--web-port", str(web_port))
     servers = children(proc.pid)
-    assert servers and all(alive(pid) for pid in servers)
+    if mode == "--web-static":
+        assert servers and all(alive(pid) for pid in servers)
+    assert answers(port) and answers(web_port)
     os.kill(proc.pid, sig)
     proc.wait(timeout=BUDGET_S)
     try:
@@ -164,9 +169,10 @@ def _server_dies_with_fviz(args: list[str], sig: int) -> None:
                 os.kill(pid, signal.SIGKILL)
 
 
+@pytest.mark.parametrize("mode", ["--web", "--web-static"])
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGKILL, signal.SIGHUP])
-def test_open_web_server_dies_with_fviz(recording, sig):
-    _server_dies_with_fviz(["open", str(recording)], sig)
+def test_open_web_server_dies_with_fviz(recording, sig, mode):
+    _server_dies_with_fviz(["open", str(recording)], sig, mode)
 
 
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGKILL])

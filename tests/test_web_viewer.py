@@ -226,9 +226,15 @@ def test_overview_shows_both_frames_the_ground_truth_and_the_comparison(inspecte
             assert n > 12, f"{name}'s epipole glyph not visible on image {v} ({n} px at {sx}, {sy}); {shot.context}"
 
 
-def test_an_estimator_tab_shows_that_estimator_alone(inspected, pair_frames, tmp_path):
+@pytest.mark.parametrize("mode", [
+    "--web-static",
+    pytest.param("--web", marks=pytest.mark.xfail(strict=True, reason=(
+        "known gap of fviz's clickable page (Rerun's notebook viewer fed over a WebSocket): the blueprint's class-id "
+        "override is not applied, the estimator tab's keypoints show the ground truth's residual colours"))),
+])
+def test_an_estimator_tab_shows_that_estimator_alone(inspected, pair_frames, tmp_path, mode):
     name = "ransac"
-    shot = Shot(inspected, tmp_path / f"tab-{name}.png", "--tab", name)
+    shot = Shot(inspected, tmp_path / f"tab-{name}.png", "--tab", name, mode)
     boxes = shot.frames(pair_frames)
     counts, crops = {}, {}
     for v, box in boxes.items():

@@ -27,17 +27,24 @@ WebPort = Annotated[int, typer.Option("--web-port", help="Port of the web viewer
                                       callback=o.checked("--web-port", lambda p: 1 <= p <= 65535, "must be a port 1 .. 65535"))]
 
 
-def serve(path: Path, bind: str, port: int, web_port: int, blueprint: Optional[Path] = None) -> None:
-    """The web viewer on ``path`` until Ctrl-C / SIGTERM / SIGHUP (``open --web`` and ``inspect --web``)."""
+CLICK_HINT = ("clicks (a point's epipolar lines under every F) need a viewer that sends them: fviz open {path} --web, "
+              "or fviz.notebook.open in Jupyter (the native viewer sends none; its probe tab steps through the worst matches)")
+
+
+def serve(path: Path, bind: str, port: int, web_port: int, blueprint: Optional[Path] = None, static: bool = False) -> None:
+    """The web viewer on ``path`` until Ctrl-C / SIGTERM / SIGHUP (``open --web`` and ``inspect --web``):
+    fviz's page, where a click draws the point's epipolar lines (:mod:`fviz.web`), or with ``static``
+    Rerun's own web viewer (``rerun --serve-web``: no clicks)."""
     from fviz.errors import FvizError
     from fviz.viewer import serve_web
+    from fviz.web.server import serve_clicks
 
     for name, value in (("--port", port), ("--web-port", web_port)):
         if not 0 < value < 65536:
             raise FvizError(f"{name} {value}: not a port (1-65535)")
     if bind not in ("127.0.0.1", "localhost", "::1"):
         print(f"warning: --bind {bind}: the viewer and the recording are reachable from other machines", file=sys.stderr)
-    serve_web(path, bind, port, web_port, blueprint)
+    (serve_web if static else serve_clicks)(path, bind, port, web_port, blueprint)
 
 
 def tab_blueprint(path: Path, tab: str) -> Path:
@@ -54,7 +61,8 @@ def tab_blueprint(path: Path, tab: str) -> Path:
 
 def open_recording(
     path: Recording,
-    web: Annotated[bool, typer.Option("--web", help="Serve the web viewer (until Ctrl-C) and print its URL.")] = False,
+    web: Annotated[bool, typer.Option("--web", help="Serve the web viewer (until Ctrl-C) and print its URL; click a point there for its epipolar lines.")] = False,
+    web_static: Annotated[bool, typer.Option("--web-static", help="Serve Rerun's own web viewer instead (rerun --serve-web; no clicks).")] = False,
     bind: WebBind = "127.0.0.1",
     port: Port = 9876,
     web_port: WebPort = 9090,
@@ -66,11 +74,12 @@ def open_recording(
 
     open_rrd(path)  # one-line error on a missing, foreign or truncated file
     blueprint = tab_blueprint(path, tab) if tab is not None else None
-    if web:
-        serve(path, bind, port, web_port, blueprint)
+    if web or web_static:
+        serve(path, bind, port, web_port, blueprint, static=web_static)
         return
     spawn_native(path, blueprint)
     print(f"native viewer started on {path}")
+    print(CLICK_HINT.format(path=path))
 
 
 def _fmt(v: float | None) -> str:

@@ -38,6 +38,14 @@ Entity paths (``{v}`` is the view, ``a`` or ``b``; ``{e}`` an estimator name, ``
                                 in both images (yellow), joins the two rings, and draws the match's epipolar
                                 line under every F in the F's colour; the text lists the residuals
     errors/{e}                  TextLog: why an estimator failed on this pair
+    pair/fundamental            AnyValues: ``estimators`` (names, ``gt`` first when known; failed ones left out),
+                                ``F`` (their F's, 9 values each, row-major), ``size_a``, ``size_b`` (w, h):
+                                what a click needs (:mod:`fviz.interactive`)
+    {v}/click, {v}/click/label  a click (:mod:`fviz.interactive`, logged live by the notebook viewer and
+                                ``fviz open --web``, never stored by fviz): in the clicked image a yellow ring,
+                                in the other the point's epipolar line under every F in its colour and the
+                                match partner's ring; the label lists the match's residual (SED) under each F
+    click/text                  TextDocument (Markdown): the click, its match and the residuals
     summary                     TextDocument (Markdown): pair, compact metrics table, F matrices below
     pair/info                   TextDocument: the pair's name (what ``fviz summary`` lists)
 
@@ -307,6 +315,18 @@ REFERENCE_LINES = 10  # of the ground truth's line matches (the first ones): the
 REFERENCE_RADIUS = 1.5  # thicker than every other line (0.9), so that it reads as the one to trust
 
 
+PAIR_FS = "pair/fundamental"
+CLICK_TEXT = "click/text"
+
+
+def click(view: str) -> str:
+    return f"{view}/click"
+
+
+def click_label(view: str) -> str:
+    return f"{view}/click/label"
+
+
 def probe(view: str) -> str:
     return f"{view}/probe"
 
@@ -343,7 +363,8 @@ def _images_view(sizes: tuple[tuple[int, int], tuple[int, int]], name: str, cont
 
     (wa, ha), (wb, hb) = sizes
     bottom = offset_b((wa, ha))[1] + hb + FOOTER_PX
-    return rrb.Spatial2DView(origin="/", contents=[f"+ {image('a')}", f"+ {image('b')}", *contents], name=name,
+    clicks = [f"+ {click(v)}/**" for v in VIEWS]  # drawn live by the viewers that send clicks (fviz.interactive)
+    return rrb.Spatial2DView(origin="/", contents=[f"+ {image('a')}", f"+ {image('b')}", *contents, *clicks], name=name,
                              visual_bounds=rrb.VisualBounds2D(x_range=[-0.5, max(wa, wb) - 0.5], y_range=[-0.5, bottom - 0.5]),
                              overrides=overrides)
 

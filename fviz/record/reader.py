@@ -514,3 +514,48 @@ def blueprint_tabs(path: str | Path) -> dict[str, list[str]]:
 
     tabs = next((f for f in fields.values() if f.get("container_kind") == [1]), None)  # 1: Tabs
     return {title(ref): queries(ref) for ref in tabs.get("contents", [])} if tabs else {}
+
+
+def click_pairs(path: str | Path) -> dict[int, Any]:
+    """{pair index: :class:`fviz.interactive.PairFs`} of every pair whose images, F's (``pair/fundamental``) and
+    matches the recording holds (the ground truth's matches, else the first estimator's); {} for a recording
+    written before fviz logged the F's, or without images (eval without --full)."""
+    import numpy as np
+
+    from fviz.interactive import PairFs
+
+    reader = open_rrd(path)
+    tl = L.TIMELINE
+    fs: dict[int, dict] = {}
+    pts: dict[int, dict[str, list]] = {}
+    for ent, is_static, rb in _chunks(path, [_entity(L.PAIR_FS), "+ /est/**"], reader):
+        if is_static or tl not in rb.schema.names:
+            continue
+        times = _ints(rb.column(tl))
+        if ent == L.PAIR_FS:
+            cols = {n: rb.column(n).to_pylist() for n in ("estimators", "F", "size_a", "size_b") if n in rb.schema.names}
+            for i, t in enumerate(times):
+                fs[t] = {k: v[i] for k, v in cols.items()}
+        elif L.matches_owner(ent) and "Points2D:positions" in rb.schema.names:
+            for t, p in zip(times, rb.column("Points2D:positions").to_pylist()):
+                if p is not None:
+                    pts.setdefault(t, {})[L.matches_owner(ent)] = p
+    out = {}
+    for t, v in fs.items():
+        if len(v) < 4 or not v["estimators"]:
+            continue
+        names = list(v["estimators"])
+        ends = pts.get(t, {})
+        owner = L.GT if L.GT in ends else next(iter(ends), None)
+        xy = np.asarray(ends[owner], float).reshape(-1, 2) if owner else np.zeros((0, 2))
+        size_a = tuple(int(s) for s in v["size_a"])
+        n = len(xy) // 2
+        out[t] = PairFs(names, np.asarray(v["F"], float).reshape(-1, 3, 3), size_a, tuple(int(s) for s in v["size_b"]),
+                        xy[:n], xy[n:] - L.offset_b(size_a))
+    return out
+
+
+def store_ids(path: str | Path) -> tuple[str, str]:
+    """(application id, recording id) of the recording in the file."""
+    s = open_rrd(path).recordings()[0]
+    return s.application_id, s.recording_id

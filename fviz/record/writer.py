@@ -414,6 +414,7 @@ def log_pair(rec, index: int, pair: Pair, result: PairResult, n_lines: int = 30,
     for v, img in (("a", pair.image_a), ("b", pair.image_b)):
         rec.log(L.image(v), rr.EncodedImage(contents=encode_jpeg(img), media_type="image/jpeg"))
     log_pair_text(rec, result, pair_markdown(result, probe_steps))
+    log_fundamentals(rec, result, pair.size_a, pair.size_b)
     m = result.matches
     sub = line_subset(result, n_lines)
     classes = match_classes(result)
@@ -561,6 +562,16 @@ def log_metrics_table(rec, result: PairResult) -> None:
     columns = {k: np.array([r.metrics.get(k, np.nan) if not r.error else np.nan for r in result.estimators], float)
                for k in keys}
     rec.log(L.PAIR_METRICS, rr.AnyValues(estimators=_names(result), **columns))
+
+
+def log_fundamentals(rec, result: PairResult, size_a: tuple[int, int], size_b: tuple[int, int]) -> None:
+    """``pair/fundamental``: the F's of the pair (failed estimators left out) and the image sizes, which a
+    click needs (:mod:`fviz.interactive`)."""
+    import rerun as rr
+
+    ok = [r for r in result.estimators if not r.error and r.F is not None]
+    rec.log(L.PAIR_FS, rr.AnyValues(estimators=[r.name for r in ok], F=np.array([r.F for r in ok], float).reshape(-1),
+                                    size_a=np.array(size_a, float), size_b=np.array(size_b, float)))
 
 
 def motion_values(result: PairResult) -> dict[str, list[float]]:

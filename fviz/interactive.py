@@ -1,0 +1,292 @@
+"""Click a point, see its lines: viewer events -> the clicked point's epipolar lines, logged live.
+
+Rerun cannot project a clicked point into the other image by itself (rerun#6553); its viewers report a click
+as a selection (``SelectionChangeEvent``) whose item carries the entity, the instance and the clicked position
+(see ``docs/interactive.md``). This module turns such a position into what fviz draws:
+
+- :func:`locate`: a position in the root 2D frame (image a at the top, image b below it shifted by
+  ``layout.offset_b``) -> the image clicked and the pixel there (fviz convention: pixel centres at integers);
+- :func:`click`: that pixel -> the nearest match end within ``SNAP_PX`` (then the match's partner and its SED
+  under every F) and the point's epipolar line in the other image under every F (l_b = F x_a, l_a = F^T x_b),
+  clipped to the image;
+- :func:`log_click`: draws it at ``layout.click(v)`` (rings, lines in each F's colour, the residuals as a label
+  and ``layout.CLICK_TEXT``), replacing the previous click;
+- :class:`ClickSession`: the events of one viewer (time cursor, selections) -> log_click into a recording
+  stream whose bytes go to that viewer (the notebook widget, :mod:`fviz.web`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from fviz.geometry import clip_lines, lines_in_a, lines_in_b, symmetric_epipolar_distance
+from fviz.record import layout as L
+
+SNAP_PX = 6.0  # a click this close to a match end (image pixels, KITTI; wider images scale it) picks that match
+RING_PX = 5.0  # the clicked point's ring and its partner's (KITTI; wider images scale it)
+
+
+@dataclass
+class PairFs:
+    """What a click needs of one pair: the F's (ground truth among them, named ``gt``), their colours, the
+    image sizes (w, h) and the matches. F: (n, 3, 3); x_a, x_b: (N, 2) in each image's pixels."""
+
+    names: list[str]
+    F: np.ndarray
+    size_a: tuple[int, int]
+    size_b: tuple[int, int]
+    x_a: np.ndarray
+    x_b: np.ndarray
+    colors: dict[str, tuple[int, int, int]] = field(default_factory=dict)
+
+    def __post_init__(self):
+        self.F = np.asarray(self.F, float).reshape(-1, 3, 3)
+        self.x_a = np.asarray(self.x_a, float).reshape(-1, 2)
+        self.x_b = np.asarray(self.x_b, float).reshape(-1, 2)
+        self.colors = self.colors or L.estimator_colors(self.names)
+
+    def size(self, view: str) -> tuple[int, int]:
+        return self.size_a if view == "a" else self.size_b
+
+    def scale(self) -> float:
+        return max(1.0, self.size_a[0] / 1241.0)
+
+
+@dataclass
+class Click:
+    """One click: ``view`` ("a" or "b") and ``point`` (2,) in that image's pixels (snapped to the match end
+    when ``match`` is not None); ``partner`` (2,) the match's other end; per F (``names``) ``lines`` (n, 3) in
+    the other image, their clipped ``segments`` (n, 2, 2; NaN outside) and ``inside`` (n,), and ``residuals``
+    (n,) the match's SED (px; NaN without a match)."""
+
+    view: str
+    point: np.ndarray
+    match: int | None
+    partner: np.ndarray | None
+    names: list[str]
+    lines: np.ndarray
+    segments: np.ndarray
+    inside: np.ndarray
+    residuals: np.ndarray
+
+    @property
+    def other(self) -> str:
+        return "b" if self.view == "a" else "a"
+
+
+def _within(p: np.ndarray, size: tuple[int, int]) -> bool:
+    return bool(-0.5 <= p[0] <= size[0] - 0.5 and -0.5 <= p[1] <= size[1] - 0.5)
+
+
+def locate(position, size_a: tuple[int, int], size_b: tuple[int, int]) -> tuple[str, np.ndarray] | None:
+    """A position in the root 2D frame ((2,) or (3,)) -> (view, (2,) pixel in that image), None off both
+    images (the gap between them, the caption below b)."""
+    p = np.asarray(position, float)[:2]
+    if _within(p, size_a):
+        return "a", p
+    q = p - L.offset_b(size_a)
+    return ("b", q) if _within(q, size_b) else None
+
+
+def nearest_match(fs: PairFs, view: str, point: np.ndarray, radius: float) -> int | None:
+    """Index of the match whose end in ``view`` is nearest ``point`` (2,), if within ``radius`` px."""
+    ends = fs.x_a if view == "a" else fs.x_b
+    if not len(ends):
+        return None
+    d = np.linalg.norm(ends - point, axis=1)
+    j = int(np.argmin(d))
+    return j if d[j] <= radius else None
+
+
+def click(fs: PairFs, view: str, point, match: int | None = None, snap: bool = True) -> Click:
+    """The click at ``point`` (2,) of image ``view``: ``match`` given (a keypoint's instance) or, with ``snap``,
+    the nearest match end within SNAP_PX; the point's lines in the other image under every F."""
+    point = np.asarray(point, float)[:2]
+    if match is None and snap:
+        match = nearest_match(fs, view, point, SNAP_PX * fs.scale())
+    partner = None
+    residuals = np.full(len(fs.names), np.nan)
+    if match is not None:
+        xa, xb = fs.x_a[match], fs.x_b[match]
+        point, partner = (xa, xb) if view == "a" else (xb, xa)
+        residuals = np.array([symmetric_epipolar_distance(F, xa[None], xb[None])[0] for F in fs.F])
+    lines = np.concatenate([(lines_in_b if view == "a" else lines_in_a)(F, point[None]) for F in fs.F]) \
+        if len(fs.F) else np.zeros((0, 3))
+    other = fs.size("b" if view == "a" else "a")
+    segments, inside = clip_lines(lines, *other)
+    return Click(view, point, match, partner, list(fs.names), lines, segments, inside, residuals)
+
+
+def click_at(fs: PairFs, position, entity_path: str | None = None, instance_id: int | None = None) -> Click | None:
+    """A selection -> the click, None when it is on neither image. ``position`` (root frame; what Rerun 0.41
+    reports for a click in a 2D view) is located and snapped to the nearest match end. A selected match end
+    (``entity_path`` a ``layout.matches`` path and ``instance_id`` i: a's end of match i for i < N, b's of match
+    i - N) is taken when there is no position, or when it lies within reach of it: Rerun reports the entity
+    hovered in the previous frame, which on a slow frame is not the one under the click (the position is)."""
+    n = len(fs.x_a)
+    picked = None
+    if entity_path is not None and L.matches_owner(entity_path) and instance_id is not None and 0 <= instance_id < 2 * n:
+        j = instance_id % n
+        view = "a" if instance_id < n else "b"
+        picked = view, j, (fs.x_a[j] if view == "a" else fs.x_b[j])
+    if position is not None:
+        found = locate(position, fs.size_a, fs.size_b)
+        if found is None:
+            return None
+        if picked is None or picked[0] != found[0] or np.linalg.norm(picked[2] - found[1]) > SNAP_PX * fs.scale():
+            return click(fs, *found)
+    return None if picked is None else click(fs, picked[0], picked[2], match=picked[1])
+
+
+def _ring(center: np.ndarray, radius: float, n: int = 20) -> np.ndarray:
+    t = np.linspace(0, 2 * np.pi, n + 1)
+    return center + radius * np.stack([np.cos(t), np.sin(t)], -1)
+
+
+def click_text(c: Click) -> str:
+    """Markdown: the point, the match and partner, and per F its residual (SED px)."""
+    head = f"**click** in image {c.view} at ({c.point[0]:.1f}, {c.point[1]:.1f})"
+    if c.match is None:
+        return head + " (no match end within reach): its epipolar line in image " + c.other + " under every F."
+    rows = [f"| {n} | {r:.2f} |" for n, r in zip(c.names, c.residuals)]
+    return "\n".join([head + f": match {c.match}, partner in {c.other} at ({c.partner[0]:.1f}, {c.partner[1]:.1f})",
+                      "", "| F | SED px |", "|---|--:|", *rows])
+
+
+def click_label(c: Click) -> str:
+    """The label beside the partner (or the clicked point): one line per F with its residual."""
+    if c.match is None:
+        return f"({c.point[0]:.0f}, {c.point[1]:.0f})"
+    return "\n".join([f"match {c.match}"] + [f"{n}: {r:.2f} px" for n, r in zip(c.names, c.residuals)])
+
+
+def click_marks(fs: PairFs, c: Click) -> dict[str, tuple[list, list, list, list]]:
+    """Per view: (strips, colours, radii, hover labels) to draw: in the clicked image the point's ring (yellow),
+    in the other the lines (each F's colour, the ground truth's thickest) and the partner's ring (yellow)."""
+    r, w = RING_PX * fs.scale(), fs.scale()
+    marks = {c.view: ([_ring(c.point, r)], [L.PROBE_COLOR], [1.2 * w], ["clicked" if c.match is None else f"match {c.match}"]),
+             c.other: ([], [], [], [])}
+    strips, colors, radii, labels = marks[c.other]
+    for k, name in enumerate(c.names):
+        if c.inside[k]:
+            strips.append(c.segments[k])
+            colors.append(fs.colors[name])
+            radii.append((1.6 if name == L.GT else 1.0) * w)
+            labels.append(name if c.match is None else f"{name}: {c.residuals[k]:.2f} px")
+    if c.partner is not None:
+        strips.append(_ring(c.partner, r))
+        colors.append(L.PROBE_COLOR)
+        radii.append(1.2 * w)
+        labels.append(f"match {c.match}")
+    return marks
+
+
+def log_click(rec, fs: PairFs, c: Click) -> None:
+    """Draw ``c`` at ``layout.click(v)`` of both views (the residual table shown beside the partner, or the
+    clicked pixel's coordinates beside it) and ``layout.CLICK_TEXT`` at the recording's current time,
+    replacing the previous click (same paths, same time: the later row wins)."""
+    import rerun as rr
+
+    at = c.partner if c.partner is not None else c.point
+    where = c.other if c.partner is not None else c.view
+    for view, (strips, colors, radii, labels) in click_marks(fs, c).items():
+        rec.log(L.click(view), rr.LineStrips2D(strips, colors=colors, radii=radii, labels=labels, show_labels=False))
+        if view == where:
+            rec.log(L.click_label(view), rr.Points2D([at + RING_PX * fs.scale()], radii=0.5, colors=[L.PROBE_COLOR],
+                                                     labels=[click_label(c)], show_labels=True))
+        else:
+            rec.log(L.click_label(view), rr.Clear(recursive=False))
+    rec.log(L.CLICK_TEXT, rr.TextDocument(click_text(c), media_type="text/markdown"))
+
+
+def clear_click(rec) -> None:
+    """Remove the click's marks at the current time (a pair not clicked yet)."""
+    import rerun as rr
+
+    for view in L.VIEWS:
+        rec.log(L.click(view), rr.Clear(recursive=True))
+    rec.log(L.CLICK_TEXT, rr.Clear(recursive=False))
+
+
+class ClickSession:
+    """One viewer's events -> clicks logged into ``rec`` (a RecordingStream with the viewed recording's
+    application and recording id, whose bytes go to that viewer).
+
+    pairs: {pair index: PairFs} (:func:`fviz.record.reader.click_pairs`, or one pair: {0: ...});
+    stamps: other timelines the recording's pair data sits at 0 on (``probe`` for inspect), so that the click
+    shows whichever timeline the viewer is on. The time cursor on ``pair`` (TimeUpdateEvent,
+    TimelineChangeEvent) picks the pair; on another timeline the last pair seen (the only one, for inspect)."""
+
+    def __init__(self, rec, pairs: dict[int, PairFs], stamps: tuple[str, ...] = ()):
+        self.rec, self.pairs, self.stamps = rec, dict(sorted(pairs.items())), stamps
+        self.timeline = L.TIMELINE
+        self.index = next(iter(self.pairs), None)
+        self.last: Click | None = None
+
+    def _at(self, timeline: str, time) -> None:
+        self.timeline = timeline
+        if timeline == L.TIMELINE and time is not None and self.pairs:
+            before = [i for i in self.pairs if i <= float(time)]
+            self.index = before[-1] if before else next(iter(self.pairs))
+
+    def on_event(self, event) -> Click | None:
+        """Handle one ``rerun`` viewer event; -> the click logged, if it was one."""
+        kind = getattr(event, "type", None)
+        if kind == "timeline_change":
+            self._at(event.timeline, event.time)
+        elif kind == "time_update":
+            self._at(self.timeline, event.time)
+        elif kind == "selection_change":
+            for item in event.items:
+                if getattr(item, "type", None) == "entity":
+                    c = self.select(item.entity_path, item.position, item.instance_id)
+                    if c is not None:
+                        return c
+        return None
+
+    def select(self, entity_path: str | None, position=None, instance_id: int | None = None) -> Click | None:
+        """A selected entity (and position in the root frame, instance) on the current pair -> the click
+        logged, None when it is on neither image (or the pair has no F)."""
+        fs = self.pairs.get(self.index) if self.index is not None else None
+        if fs is None:
+            return None
+        c = click_at(fs, position, entity_path.lstrip("/") if entity_path else None, instance_id)
+        if c is not None:
+            self.log(self.index, fs, c)
+            self.last = c
+        return c
+
+    def log(self, index: int, fs: PairFs, c: Click) -> None:
+        """``c`` at pair ``index``; the next pair's marks cleared, so that the click stays on its own pair."""
+        for t in self.stamps:
+            self.rec.set_time(t, sequence=0)
+        self.rec.set_time(L.TIMELINE, sequence=index)
+        log_click(self.rec, fs, c)
+        later = [i for i in self.pairs if i > index]
+        if later:
+            self.rec.set_time(L.TIMELINE, sequence=later[0])
+            clear_click(self.rec)
+
+
+def session_for(path, rec=None):
+    """A :class:`ClickSession` on the recording at ``path``: a new RecordingStream with the file's application
+    and recording id (the clicks land in the recording the viewer shows) unless ``rec`` is given."""
+    import rerun as rr
+
+    from fviz.record.reader import click_pairs, store_ids, timelines
+
+    app_id, rec_id = store_ids(path)
+    rec = rec or rr.RecordingStream(app_id, recording_id=rec_id, send_properties=False)
+    stamps = tuple(t for t in timelines(path) if t == L.PROBE_TIMELINE)
+    return ClickSession(rec, click_pairs(path), stamps)
+
+
+def pair_fs(result, size_a: tuple[int, int], size_b: tuple[int, int]) -> PairFs:
+    """The :class:`PairFs` of an evaluated pair (:class:`fviz.evaluate.PairResult`; failed estimators left
+    out), as :func:`fviz.record.writer.log_fundamentals` stores it."""
+    ok = [r for r in result.estimators if not r.error and r.F is not None]
+    m = result.matches
+    x_a, x_b = (np.zeros((0, 2)), np.zeros((0, 2))) if m is None else (m.x_a, m.x_b)
+    return PairFs([r.name for r in ok], np.array([r.F for r in ok], float).reshape(-1, 3, 3), size_a, size_b, x_a, x_b)
