@@ -136,6 +136,7 @@ def run_figures(run_dir: Path) -> dict[str, dict]:
     from fviz.run.config import csv_number
 
     per_pair: dict[str, list[float]] = {}
+    pair_gt: dict[str, list[str]] = {}
     ground_truth: set[str] = set()
     path = run_dir / "metrics.csv"
     with open(path, newline="") as f:
@@ -144,7 +145,8 @@ def run_figures(run_dir: Path) -> dict[str, dict]:
             failed = bool(row.get("error") or row.get("pair_error"))
             per_pair.setdefault(row["estimator"], []).extend(
                 math.nan if failed else csv_number(row, k, f"{path}:{line}") for k in FIGURE_KEYS)
-    return standard_figures(per_pair, known=figures_known(ground_truth))
+            pair_gt.setdefault(row["estimator"], []).append(row.get("ground_truth") or "pose")
+    return standard_figures(per_pair, known=figures_known(ground_truth), pair_gt=pair_gt)
 
 
 def _rows(f, path: Path):

@@ -399,7 +399,21 @@ class RunConfig:
             object.__setattr__(self, "_fingerprinted", {"options": d["options"], "norm": d["norm"],
                                                         "eval_threshold": float(d["eval_threshold"])})
         settings = {**self.__dict__["_fingerprinted"], "pair": {k: v for k, v in ref.items() if k != "name"}}
+        inputs = self.input_digest(ref.get("name"))
+        if inputs is not None:  # KITTI and synthetic pairs have none (their records keep their fingerprints)
+            settings["inputs"] = inputs
         return hashlib.sha256(json.dumps(settings, sort_keys=True).encode()).hexdigest()[:20]
+
+    def input_digest(self, name: str | None) -> str | None:
+        """A digest of the content the pair ``name`` is read from, where the source is a user's: its pairs-file
+        line (names, rotations, cameras, pose), its COLMAP cameras and poses, its --matches / --gt-matches file.
+        An edited input makes the pair's records another configuration's (evaluated again on --resume)."""
+        if "_digests" not in self.__dict__:
+            from fviz.data.sources import input_digests
+
+            source = self.selection.source()
+            object.__setattr__(self, "_digests", input_digests(source, source.pair_ids()))
+        return self.__dict__["_digests"].get(name)
 
     def estimator_names(self) -> list[str]:
         """Display names, in order (``gt`` not included)."""

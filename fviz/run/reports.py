@@ -78,6 +78,7 @@ class _Stats:
         self.ground_truth: set[str] = set()  # what the pairs' ground truth is (pose, F, correspondences, none)
         self.precision: dict[str, array] = {}  # match precision per pair (fviz.geometry.precision)
         self.oracle_choice: dict[str, dict[str, int]] = {}  # sweep oracle -> {the grid entry it chose: pairs}
+        self.pair_gt: dict[str, list[str]] = {}  # per estimator, each pair's ground truth (pose, F, ..., none)
 
     @property
     def known(self) -> dict[str, bool]:
@@ -99,6 +100,7 @@ class _Stats:
                 self.failed[est] = self.failed.get(est, 0) + 1
             self.per_pair.setdefault(est, array("d")).extend(
                 math.nan if failed or row.get(k) is None else float(row[k]) for k in FIGURE_KEYS)
+            self.pair_gt.setdefault(est, []).append(row.get("ground_truth") or "pose")
             for key in self.keys:
                 v = row.get(key)
                 if isinstance(v, float) and math.isfinite(v):
@@ -219,7 +221,7 @@ def summary_markdown(config: RunConfig, stats: _Stats) -> str:
         "",
         "## Standard figures",
         "",
-        *figures_markdown(standard_figures(stats.per_pair, ests, stats.known)),
+        *figures_markdown(standard_figures(stats.per_pair, ests, stats.known, stats.pair_gt)),
         "",
         "## Per estimator",
     ]
@@ -290,7 +292,7 @@ def sweep_curves(config: RunConfig, stats: _Stats) -> dict[str, dict[str, Any]]:
     from fviz.estimators.registry import display_names
     from fviz.estimators.sweep import ORACLE, split_threshold
 
-    figures = standard_figures(stats.per_pair, list(stats.order))
+    figures = standard_figures(stats.per_pair, list(stats.order), pair_gt=stats.pair_gt)
     out: dict[str, dict[str, Any]] = {}
     for spec, name in zip(config.options.names, display_names(config.options.names)):
         base, th = split_threshold(spec)
@@ -316,7 +318,7 @@ def sweep_markdown(config: RunConfig, stats: _Stats) -> list[str]:
              "the run*: the threshold of the highest AUC@10°; `-th-oracle`: per pair, the threshold whose F is closest "
              "to the ground truth. Both are chosen with the labels (oracles, as glue-factory's `ransac_th=-1`).", "",
              "| estimator | threshold px | AUC@10° | median SED px | |", "|---|---|---|---|---|"]
-    figures = standard_figures(stats.per_pair, list(stats.order))
+    figures = standard_figures(stats.per_pair, list(stats.order), pair_gt=stats.pair_gt)
     for base, entry in curves.items():
         for th, (name, f) in entry["curve"].items():
             lines.append(f"| {base} | {th} | {_fmt(f['pose_auc'].get('10', math.nan))} | {_fmt(f['sed_median'])} | "
@@ -346,12 +348,16 @@ BASELINE_NOTE = (
 
 
 def standard_figures(per_pair: dict[str, Iterable[float]], order: Iterable[str] | None = None,
-                     known: dict[str, bool] | None = None) -> dict[str, dict[str, Any]]:
+                     known: dict[str, bool] | None = None,
+                     pair_gt: dict[str, list[str]] | None = None) -> dict[str, dict[str, Any]]:
     """Per estimator, from its per-pair FIGURE_KEYS (flat, NaN = failed): pairs, failed, pose AUC@5/10/20 of
     pose_err_deg (LightGlue's pose_auc; failures infinite), nsgd_recall (share of pairs with nsgd <
     NSGD_RECALL_THRESHOLD; failures miss), medians of the per-pair sed_median and sampson_median over the
     pairs that succeeded, and whether it is an oracle. ``known``: {"pose", "nsgd"} -> whether the pairs'
-    ground truth allows that figure; NaN (n/a) where it does not (no pose, no ground truth)."""
+    ground truth allows that figure; NaN (n/a) where it does not (no pose, no ground truth). ``pair_gt``: per
+    estimator, each pair's ground truth (pose, F, correspondences, none): pose AUC is then over the pairs with a
+    pose and NSGD recall over those with any ground truth (``pose_pairs``, ``gt_pairs``), never counting a pair
+    without one as a miss."""
     known = known or {"pose": True, "nsgd": True}
     from fviz.estimators.registry import is_oracle
     from fviz.geometry import AUC_THRESHOLDS_DEG, NSGD_RECALL_THRESHOLD, pose_auc
@@ -361,10 +367,14 @@ def standard_figures(per_pair: dict[str, Iterable[float]], order: Iterable[str] 
         v = np.asarray(per_pair.get(est, []), np.float64).reshape(-1, len(FIGURE_KEYS))
         pose, nsgd_, sed, samp = v.T
         failed = int(np.isnan(sed).sum())
+        kinds = (pair_gt or {}).get(est)
+        has_pose = np.ones(len(v), bool) if kinds is None or len(kinds) != len(v) else np.array([k == "pose" for k in kinds], bool)
+        has_gt = np.ones(len(v), bool) if kinds is None or len(kinds) != len(v) else np.array([k != "none" for k in kinds], bool)
+        pose, nsgd_ = pose[has_pose], nsgd_[has_gt]
         with np.errstate(invalid="ignore"):
-            recall = float(np.mean(np.nan_to_num(nsgd_, nan=np.inf) < NSGD_RECALL_THRESHOLD)) if len(v) else math.nan
+            recall = float(np.mean(np.nan_to_num(nsgd_, nan=np.inf) < NSGD_RECALL_THRESHOLD)) if len(nsgd_) else math.nan
         out[est] = {
-            "pairs": len(v), "failed": failed,
+            "pairs": len(v), "failed": failed, "pose_pairs": int(has_pose.sum()), "gt_pairs": int(has_gt.sum()),
             "pose_auc": {f"{t:g}": a if known["pose"] else math.nan for t, a in zip(AUC_THRESHOLDS_DEG, pose_auc(pose))},
             "nsgd_recall": recall if known["nsgd"] else math.nan,
             "sed_median": float(np.nanmedian(sed)) if failed < len(v) else math.nan,
@@ -389,6 +399,11 @@ def figures_markdown(figures: dict[str, dict[str, Any]]) -> list[str]:
                      + " | ".join(_fmt(a) for a in f["pose_auc"].values())
                      + f" | {_fmt(f['nsgd_recall'])} | {_fmt(f['sed_median'])} | {_fmt(f['sampson_median'])} | "
                      f"{f['failed']}/{f['pairs']} |")
+    partial = [f"{_display(e)}: pose AUC over {f['pose_pairs']} and NSGD recall over {f['gt_pairs']} of {f['pairs']} pairs"
+               for e, f in figures.items() if f.get("pose_pairs", f["pairs"]) < f["pairs"] or f.get("gt_pairs", f["pairs"]) < f["pairs"]]
+    if partial:
+        lines += ["", "Only the pairs with ground truth count in the figures (a pose for AUC, any ground truth for NSGD "
+                  "recall): " + "; ".join(partial[:1]) + (" (likewise the others)" if len(partial) > 1 else "") + "."]
     lines += [
         "",
         "Pose AUC: area under the recall curve of max(rotation error, translation-direction error) up to each threshold, "
@@ -403,7 +418,7 @@ def figures_markdown(figures: dict[str, dict[str, Any]]) -> list[str]:
 def summary_document(config: RunConfig, stats: _Stats) -> dict[str, Any]:
     """summary.json: the standard figures per estimator, machine-readable (NaN written as null)."""
     ests = list(stats.order) or config.series_names()
-    figures = standard_figures(stats.per_pair, ests, stats.known)
+    figures = standard_figures(stats.per_pair, ests, stats.known, stats.pair_gt)
     clean = lambda v: v if not isinstance(v, float) or math.isfinite(v) else None  # noqa: E731
     return {
         "selection": config.selection.describe(), "pairs": stats.pairs, "pairs_failed": stats.pair_errors,

@@ -328,7 +328,7 @@ class ResultStore:
             out[key] = Entry(self.path, off, indices[key] if indices else rec["index"], tuple(rec["estimators"]),
                              rec.get("result") is not None, size if isinstance(size, int) else None)
         if other or outside:
-            parts = [f"{other} made with other settings (or without a fingerprint)"] * bool(other)
+            parts = [f"{other} made with other settings or inputs (or without a fingerprint)"] * bool(other)
             parts += [f"{outside} of pairs outside the run's selection"] * bool(outside)
             _warn_once(f"warning: {self.path}: {other + outside} records ignored ({', '.join(parts)}); "
                        "only records of this run's pairs and settings are used")

@@ -1,0 +1,143 @@
+"""Trust nothing, round two (issue 31): run, cache and training items. Each case is built from generated
+or shared files as a user would, through the real ``fviz`` in a subprocess where the CLI is the subject."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import stat
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from cli_util import TINY_MODEL_TOML, assert_one_line_error, read_csv, run_fviz as _run_fviz
+
+FAST = ("--max-keypoints", "400", "--workers", "1", "--no-progress")
+VOLATILE = {"seconds"}
+
+
+def run_fviz(*args, timeout=600, **kw):
+    return _run_fviz(*args, timeout=timeout, **kw)
+
+
+def ok(*args, **kw):
+    r = run_fviz(*args, **kw)
+    assert r.returncode == 0, r.stderr
+    assert "Traceback" not in r.stderr
+    return r
+
+
+def lines(path):
+    return [json.loads(line) for line in Path(path).read_text().splitlines()]
+
+
+def stable(rows):
+    return [{k: v for k, v in r.items() if k not in VOLATILE} for r in rows]
+
+
+# ------------------------------------------------------------------------------ KITTI pairs as a user's pairs file
+
+
+def kitti_pairs(kitti_root):
+    """(image folder, [temporal 3->4 line, stereo 0 line] with poses, their names-only versions, stereo T)."""
+    seq = kitti_root / "odometry" / "dataset" / "sequences" / "00"
+    calib = {l.split(":")[0]: np.array(l.split()[1:], float).reshape(3, 4)
+             for l in (seq / "calib.txt").read_text().splitlines() if ":" in l}
+    poses = np.loadtxt(kitti_root / "odometry" / "dataset" / "poses" / "00.txt").reshape(-1, 3, 4)
+    K0 = calib["P0"][:, :3]
+    to4 = lambda M: np.vstack([M, [0, 0, 0, 1]])  # noqa: E731
+    T_stereo = np.eye(4)
+    T_stereo[:3, 3] = np.linalg.solve(calib["P1"][:, :3], calib["P1"][:, 3])
+    T_temporal = np.linalg.inv(to4(poses[4])) @ to4(poses[3])
+    names = [("image_0/000003.png", "image_0/000004.png"), ("image_0/000000.png", "image_1/000000.png")]
+    full = [f"{a} {b} 0 0 " + " ".join(repr(float(v)) for v in [*K0.ravel(), *calib["P0" if i == 0 else "P1"][:, :3].ravel(), *T.ravel()])
+            for i, (T, (a, b)) in enumerate(zip((T_temporal, T_stereo), names))]
+    return seq, full, [f"{a} {b}" for a, b in names], K0, T_temporal, T_stereo
+
+
+def line_F(K0, K1, T):
+    """F of a pairs line, written out: K1^-T [t]x R K0^-1, unit norm."""
+    R, t = T[:3, :3], T[:3, 3]
+    tx = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]])
+    F = np.linalg.inv(K1).T @ tx @ R @ np.linalg.inv(K0)
+    return F / np.linalg.norm(F)
+
+
+def same_up_to_sign(A, B, tol=1e-6):
+    A, B = np.asarray(A, float), np.asarray(B, float)
+    return min(np.abs(A - B).max(), np.abs(A + B).max()) < tol
+
+
+def auc_one(err, t):
+    """LightGlue's pose AUC of one pair's error at threshold t, written out."""
+    return (t - err / 2) / t if err < t else 0.0
+
+
+# ------------------------------------------------------------------------------ silent wrong results
+
+
+def test_resume_after_a_pairs_line_was_edited_evaluates_that_pair_again(kitti_root, tmp_path):
+    seq, full, _, K0, T_temporal, T_stereo = kitti_pairs(kitti_root)
+    pairs, run = tmp_path / "pairs.txt", tmp_path / "run"
+    pairs.write_text("\n".join(full) + "\n")
+    ok("eval", "--pairs", pairs, "--images", seq, "-e", "8point", *FAST, "--out-dir", run)
+    before = lines(run / "results.jsonl")
+    # the user corrects the pose of line 0 (another motion), then adds an estimator
+    T_new = T_temporal.copy()
+    T_new[:3, 3] = [0.3, 0.0, -0.9]
+    fields = full[0].split()
+    fields[22:] = [repr(float(v)) for v in T_new.ravel()]
+    pairs.write_text(" ".join(fields) + "\n" + full[1] + "\n")
+    r = ok("eval", "--resume", "--pairs", pairs, "--images", seq, "-e", "8point", "-e", "magsac", *FAST, "--out-dir", run)
+    assert "1 records ignored (1 made with other settings or inputs" in r.stderr, r.stderr
+    latest = {rec["index"]: rec for rec in lines(run / "results.jsonl")}
+    assert same_up_to_sign(latest[0]["result"]["F_gt"], line_F(K0, K0, T_new))
+    assert not same_up_to_sign(before[0]["result"]["F_gt"], latest[0]["result"]["F_gt"], 1e-3)
+    # every estimator of the edited pair is scored against the new pose: as a fresh run on the edited file
+    ok("eval", "--pairs", pairs, "--images", seq, "-e", "8point", "-e", "magsac", *FAST, "--out-dir", tmp_path / "fresh")
+    rows = [r for r in read_csv(run / "metrics.csv") if r["index"] == "0"]
+    fresh = [r for r in read_csv(tmp_path / "fresh" / "metrics.csv") if r["index"] == "0"]
+    assert stable(rows) == stable(fresh)
+    # the untouched line kept its record (8point not computed again)
+    assert latest[1]["result"]["estimators"][:2] == before[1]["result"]["estimators"][:2]
+
+
+def test_resume_after_gt_matches_were_edited_evaluates_again(kitti_root, tmp_path):
+    """--gt-matches (one file per pair in a folder): editing one pair's file re-evaluates that pair only."""
+    seq, _, names, *_ = kitti_pairs(kitti_root)
+    pairs, gt, run = tmp_path / "pairs.txt", tmp_path / "gt", tmp_path / "run"
+    pairs.write_text("\n".join(names) + "\n")
+    gt.mkdir()
+    rng = np.random.default_rng(0)
+    for a, b in (n.split() for n in names):
+        x = rng.uniform([10, 10], [1200, 360], (40, 2))
+        (gt / f"{Path(a).stem}_{Path(b).stem}.txt").write_text("".join(f"{u} {v} {u + 5} {v}\n" for u, v in x))
+    ok("eval", "--pairs", pairs, "--images", seq, "--gt-matches", gt, "-e", "8point", *FAST, "--out-dir", run)
+    edited = gt / "000003_000004.txt"
+    edited.write_text("".join(f"{u} {v} {u} {v + 4}\n" for u, v in rng.uniform([10, 10], [1200, 360], (40, 2))))
+    r = ok("eval", "--resume", "--pairs", pairs, "--images", seq, "--gt-matches", gt, "-e", "8point", *FAST, "--out-dir", run)
+    assert "1 already done, 1 evaluated now" in r.stderr, r.stderr
+
+
+def test_standard_figures_count_only_pairs_with_ground_truth(kitti_root, tmp_path):
+    seq, full, names, *_ = kitti_pairs(kitti_root)
+    pairs, run = tmp_path / "pairs.txt", tmp_path / "run"
+    pairs.write_text(full[0] + "\n" + names[1] + "\n")  # a pose, then names only
+    ok("eval", "--pairs", pairs, "--images", seq, "-e", "magsac", *FAST, "--out-dir", run)
+    row = next(r for r in read_csv(run / "metrics.csv") if r["estimator"] == "magsac" and r["index"] == "0")
+    err, nsgd = float(row["pose_err_deg"]), float(row["nsgd"])
+    f = json.loads((run / "summary.json").read_text())["estimators"]["magsac"]
+    for t in ("5", "10", "20"):
+        assert f["pose_auc"][t] == pytest.approx(auc_one(err, float(t)), abs=1e-9)
+    from fviz.geometry import NSGD_RECALL_THRESHOLD
+
+    assert f["nsgd_recall"] == (1.0 if nsgd < NSGD_RECALL_THRESHOLD else 0.0)
+    assert (f["pose_pairs"], f["gt_pairs"], f["pairs"]) == (1, 1, 2)
+    assert "pose AUC over 1 and NSGD recall over 1 of 2 pairs" in (run / "summary.md").read_text()
+    table = ok("table", run).stdout
+    from fviz.table import run_figures
+
+    assert run_figures(run)["magsac"]["pose_auc"]["20"] == pytest.approx(auc_one(err, 20.0), abs=1e-9)
