@@ -175,7 +175,10 @@ def write_table(run_dir: str | Path) -> tuple[Path, Path]:
             + EPI_CAVEAT + "\n")
     figures = ["", "## Standard figures", "", *figures_markdown(run_figures(run_dir))]
     md_path, csv_path = run_dir / "table.md", run_dir / "table.csv"
-    write_text(md_path, "\n".join(md) + "\n" + note + "\n".join(figures) + "\n")
     lines = [",".join(header)] + [",".join(f'"{c}"' if "," in c else c for c in r) for r in rows]
-    write_text(csv_path, "\n".join(lines) + "\n")
+    from fviz.atomic import owning
+
+    with owning(run_dir):  # a table.md planted as a link to a file outside the run is never written through
+        write_text(md_path, "\n".join(md) + "\n" + note + "\n".join(figures) + "\n")
+        write_text(csv_path, "\n".join(lines) + "\n")
     return md_path, csv_path

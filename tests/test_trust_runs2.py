@@ -141,3 +141,119 @@ def test_standard_figures_count_only_pairs_with_ground_truth(kitti_root, tmp_pat
     from fviz.table import run_figures
 
     assert run_figures(run)["magsac"]["pose_auc"]["20"] == pytest.approx(auc_one(err, 20.0), abs=1e-9)
+
+
+# ------------------------------------------------------------------------------ training folders
+
+
+def train_recipe(tmp_path, out_dir, steps=2):
+    recipe = tmp_path / "r.toml"
+    recipe.write_text(f"""{TINY_MODEL_TOML}[data]
+source = "synthetic"
+train_size = 8
+val_size = 4
+[train]
+batch_size = 4
+epochs = 5
+max_steps = {steps}
+num_workers = 0
+threads = 1
+out_dir = "{out_dir}"
+""")
+    return recipe
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory):
+    """A finished tiny training (recipe, out_dir)."""
+    base = tmp_path_factory.mktemp("train")
+    out = base / "out"
+    recipe = train_recipe(base, out)
+    ok("train", recipe)
+    return recipe, out
+
+
+def test_train_never_overwrites_a_model_whose_last_pt_was_removed(trained, tmp_path):
+    _, done = trained
+    out = tmp_path / "out"
+    shutil.copytree(done, out)
+    (out / "last.pt").unlink()
+    kept = (out / "model.pt").read_bytes()
+    r = run_fviz("train", train_recipe(tmp_path, out))
+    assert_one_line_error(r, 2, f"{out} already holds a trained model (model.pt, without last.pt")
+    assert (out / "model.pt").read_bytes() == kept
+
+
+def test_a_bit_flipped_checkpoint_is_refused(trained, tmp_path):
+    import torch
+
+    _, done = trained
+    model = tmp_path / "model.pt"
+    shutil.copy(done / "model.pt", model)
+    ckpt = torch.load(model, weights_only=True)
+    assert "state_digest" in ckpt
+    # flip one bit of the largest tensor's bytes inside the file (the zip stores tensors uncompressed)
+    name, tensor = max(ckpt["model_state"].items(), key=lambda kv: kv[1].numel())
+    raw = bytearray(model.read_bytes())
+    needle = tensor.contiguous().view(torch.uint8).numpy().tobytes()[:64]
+    at = raw.find(needle)
+    assert at > 0, "tensor bytes not found in the file"
+    raw[at + 5] ^= 0x10
+    model.write_bytes(bytes(raw))
+    from fviz.errors import FvizError
+    from fviz.models.weights import load_model
+
+    with pytest.raises(FvizError, match="damaged: its weights do not match the digest"):
+        load_model(model)
+    a, b = Path(__file__).resolve().parents[1] / "tests", None  # noqa: F841
+    r = run_fviz("inspect", "pair", "--synthetic", "--seed", "0", "-e", f"deep:{model}", "--out", tmp_path / "x.rrd")
+    assert r.returncode == 2 and "damaged" in r.stderr and "Traceback" not in r.stderr, r.stderr
+
+
+def test_a_planted_model_pt_link_out_of_the_train_folder_is_never_written_through(tmp_path):
+    out, victim = tmp_path / "out", tmp_path / "victim.pt"
+    out.mkdir()
+    victim.write_bytes(b"precious")
+    (out / "model.pt").symlink_to(victim)
+    r = run_fviz("train", train_recipe(tmp_path, out))
+    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
+    assert victim.read_bytes() == b"precious"
+    # a link at train.rrd: refused before training, its target untouched
+    out2 = tmp_path / "out2"
+    out2.mkdir()
+    (out2 / "train.rrd").symlink_to(victim)
+    assert_one_line_error(run_fviz("train", train_recipe(tmp_path, out2)), 2, "train.rrd is a symlink to", "outside")
+    assert victim.read_bytes() == b"precious"
+
+
+def test_a_resumed_train_keeps_a_600_train_rrd(trained, tmp_path):
+    recipe, done = trained
+    out = tmp_path / "out"
+    shutil.copytree(done, out)
+    for name in ("train.rrd", "last.pt"):
+        os.chmod(out / name, 0o600)
+    ok("train", train_recipe(tmp_path, out, steps=3), "--resume")
+    for name in ("train.rrd", "last.pt", "model.pt"):
+        assert stat.S_IMODE(os.stat(out / name).st_mode) in (0o600,) or name == "model.pt", name
+    assert not list(out.glob(".*tmp*"))
+
+
+def _limit_file_size(limit):
+    def pre():
+        import resource
+        import signal
+
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # write() then fails with EFBIG instead of killing
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+    return pre
+
+
+def test_disk_full_while_train_writes_a_checkpoint_is_one_line(tmp_path):
+    """Simulated with RLIMIT_FSIZE (a tmpfs needs mount rights the test runner may lack): write() fails with EFBIG."""
+    out = tmp_path / "out"
+    r = subprocess.run([sys.executable, "-m", "fviz", "train", str(train_recipe(tmp_path, out))], capture_output=True,
+                       text=True, timeout=600, preexec_fn=_limit_file_size(20_000))
+    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
+    last = r.stderr.strip().splitlines()[-1]  # after training's own progress lines
+    assert last.startswith("error: cannot write") and "last.pt" in last and "previous version is kept" in last, last
+    assert not [p for p in out.iterdir() if p.name.startswith(".last.pt.tmp")]

@@ -641,7 +641,18 @@ def run_eval(config: RunConfig, out_dir: str | Path, workers: int | None = None,
              progress: bool = True) -> RunOutcome:
     """:func:`_run_eval` holding the lock of ``out_dir`` (another run into it is refused)."""
     with locked(out_dir):
+        _check_outputs(Path(out_dir))
         return _run_eval(config, out_dir, workers, resume, progress)
+
+
+def _check_outputs(out_dir: Path) -> None:
+    """Every file the run will replace is a regular file of the run folder (or not there yet): a folder, FIFO or a
+    link planted to point outside it is refused now, before any pair is evaluated."""
+    from fviz.atomic import target
+    from fviz.run.config import CSV_FILE, PARQUET_FILE, RRD_FILE, RUN_FILE, SUMMARY_FILE, SUMMARY_JSON
+
+    for name in (RUN_FILE, CSV_FILE, PARQUET_FILE, SUMMARY_FILE, SUMMARY_JSON, RRD_FILE, "features.h5", "matches.h5"):
+        target(out_dir / name)
 
 
 def _run_eval(config: RunConfig, out_dir: str | Path, workers: int | None = None, resume: bool = False,

@@ -508,10 +508,13 @@ def locked(out_dir: str | Path, flag: str = "--out-dir") -> Iterator[None]:
         finally:
             _held[key] -= 1
         return
+    from fviz.atomic import owning
+
     fd = _acquire(out_dir, flag)
     _held[key] = 1
     try:
-        yield
+        with owning(out_dir):
+            yield
     finally:
         del _held[key]
         with contextlib.suppress(OSError):
