@@ -257,3 +257,50 @@ def test_disk_full_while_train_writes_a_checkpoint_is_one_line(tmp_path):
     last = r.stderr.strip().splitlines()[-1]  # after training's own progress lines
     assert last.startswith("error: cannot write") and "last.pt" in last and "previous version is kept" in last, last
     assert not [p for p in out.iterdir() if p.name.startswith(".last.pt.tmp")]
+
+
+# ------------------------------------------------------------------------------ runs without ground truth
+
+
+@pytest.fixture(scope="module")
+def no_gt_run(kitti_root, tmp_path_factory):
+    """(images, names-only pairs file, a finished 8point run of it)."""
+    seq, _, names, *_ = kitti_pairs(kitti_root)
+    base = tmp_path_factory.mktemp("nogt")
+    pairs = base / "names.txt"
+    pairs.write_text("\n".join(names) + "\n")
+    ok("eval", "--pairs", pairs, "--images", seq, "-e", "8point", *FAST, "--out-dir", base / "run")
+    return seq, pairs, base / "run"
+
+
+@pytest.mark.parametrize("command", ["eval", "triage"])
+def test_a_new_estimator_on_a_run_without_ground_truth(no_gt_run, tmp_path, command):
+    _, _, done = no_gt_run
+    run = tmp_path / "run"
+    shutil.copytree(done, run)
+    extra = ("--resume",) if command == "eval" else ()
+    ok(command, *extra, "--out-dir", run, "-e", "8point", "-e", "ransac", *FAST)
+    names = {r["estimator"] for r in read_csv(run / "metrics.csv")}
+    assert {"8point", "ransac"} <= names and "gt" not in names
+
+
+def test_oracle_mean_without_ground_truth_is_one_line(no_gt_run, tmp_path):
+    seq, pairs, _ = no_gt_run
+    r = run_fviz("eval", "--pairs", pairs, "--images", seq, "-e", "oracle-mean", *FAST, "--out-dir", tmp_path / "r")
+    assert_one_line_error(r, 2, "--estimator oracle-mean: no pair of its selection has a ground-truth F", "has no ground truth")
+
+
+def test_mean_of_a_sequence_with_a_pairs_file_is_one_line(no_gt_run, tmp_path):
+    seq, pairs, _ = no_gt_run
+    r = run_fviz("eval", "--pairs", pairs, "--images", seq, "-e", "mean:01", *FAST, "--out-dir", tmp_path / "r")
+    assert_one_line_error(r, 2, "--estimator mean:01: mean:SEQ averages the ground truth of other KITTI sequences",
+                          "a --pairs run has no sequence to average")
+
+
+def test_a_threshold_sweep_without_ground_truth_says_the_oracle_needs_it(no_gt_run, tmp_path):
+    seq, pairs, _ = no_gt_run
+    run = tmp_path / "r"
+    ok("eval", "--pairs", pairs, "--images", seq, "-e", "magsac", "--threshold", "sweep", *FAST, "--out-dir", run)
+    errors = {r["error"] for r in read_csv(run / "metrics.csv") if r["estimator"] == "magsac-th-oracle"}
+    assert len(errors) == 1 and "needs ground truth" in errors.pop() and "numpy" not in str(errors)
+    assert all(not r["error"] for r in read_csv(run / "metrics.csv") if r["estimator"] == "magsac-th1")

@@ -490,6 +490,11 @@ def baseline_selections(sel: Selection, spec: str) -> list[Selection]:
     if spec == ORACLE_MEAN:
         return [sel]
     what = spec[len(MEAN_PREFIX):]
+    if sel.user:
+        source = "--pairs" if sel.pairs and not sel.colmap else "--colmap" if sel.colmap else "--image-a/--image-b"
+        raise FvizError(f"--estimator {spec}: mean:SEQ averages the ground truth of other KITTI sequences (mean:A:B: "
+                        f"other synthetic seeds); a {source} run has no sequence to average: use oracle-mean (the "
+                        "evaluated pairs' own mean F, an oracle) or ahead")
     if sel.synthetic:
         try:
             a, b = (int(v) for v in what.split(":"))
@@ -521,9 +526,14 @@ def baseline_fundamental(sel: Selection, spec: str) -> np.ndarray:
             source = s.source()
             for pid in source.pair_ids():
                 try:
-                    yield source.ground_truth(pid)
+                    F = source.ground_truth(pid)
                 except FvizError as exc:  # a pair without F (no motion): the baseline is the mean of the others
                     skipped.append(str(exc))
+                    continue
+                if F is None:  # a pair without ground truth (a names-only pairs line)
+                    skipped.append(f"the pair {pid.name} has no ground truth")
+                else:
+                    yield F
 
     try:
         F = mean_fundamental(all_gt())

@@ -101,7 +101,8 @@ def merge_record(old: dict[str, Any], new: dict[str, Any], order: list[str]) -> 
     names = [n for n in order if n in have or n in got or n in new["estimators"]]
     names += [n for n in old["estimators"] if n not in names]
     failed = EstimatorResult("", None, {}, 0.0, f"pair failed when this estimator was added: {new['error']}").to_dict()
-    ests = [have[GT_NAME]] + [have.get(n) or got.get(n) or {**failed, "name": n} for n in names]
+    gt = [have[GT_NAME]] if GT_NAME in have else []  # a pair without ground truth has no gt entry
+    ests = gt + [have.get(n) or got.get(n) or {**failed, "name": n} for n in names]
     diag_old, diag_new = old.get("diagnostics"), new.get("diagnostics")
     diag = diag_old if not (diag_old and diag_new) else {
         **diag_old, "estimators": {**diag_new["estimators"], **diag_old["estimators"]}}
