@@ -304,3 +304,78 @@ def test_a_threshold_sweep_without_ground_truth_says_the_oracle_needs_it(no_gt_r
     errors = {r["error"] for r in read_csv(run / "metrics.csv") if r["estimator"] == "magsac-th-oracle"}
     assert len(errors) == 1 and "needs ground truth" in errors.pop() and "numpy" not in str(errors)
     assert all(not r["error"] for r in read_csv(run / "metrics.csv") if r["estimator"] == "magsac-th1")
+
+
+# ------------------------------------------------------------------------------ leftovers
+
+
+@pytest.fixture(scope="module")
+def small_recording(tmp_path_factory):
+    out = tmp_path_factory.mktemp("rec") / "p.rrd"
+    ok("inspect", "pair", "--synthetic", "--seed", "0", "-e", "8point", "--out", out, "--max-keypoints", "300")
+    return out
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="a display is an X11/Wayland matter")
+@pytest.mark.parametrize("display", [None, ":97"])
+def test_open_tab_leaves_no_temporary_folder(small_recording, tmp_path, display):
+    """Without a display (one-line error) and with one named that no server answers (the viewer starts and
+    exits): no fviz-open-* folder is left in the temporary directory."""
+    import time
+
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    env.update(TMPDIR=str(tmp), **({"DISPLAY": display} if display else {}))
+    r = subprocess.run([sys.executable, "-m", "fviz", "open", str(small_recording), "--tab", "overview"],
+                       capture_output=True, text=True, env=env, timeout=300)
+    assert "Traceback" not in r.stderr, r.stderr
+    end = time.monotonic() + 60
+    while list(tmp.glob("fviz-open-*")) and time.monotonic() < end:
+        time.sleep(0.5)
+    assert not list(tmp.glob("fviz-open-*"))
+
+
+SYN = ("--synthetic", "--seeds", "0:2", "-e", "8point", *FAST)
+
+
+@pytest.fixture(scope="module")
+def syn_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("syn") / "run"
+    ok("eval", *SYN, "--out-dir", out)
+    return out
+
+
+@pytest.mark.parametrize("name", ["summary.md", "metrics.csv", "features.h5", "eval.rrd", "summary.json", "run.json"])
+def test_a_link_planted_in_a_run_folder_is_never_written_through(syn_run, tmp_path, name):
+    run, victim = tmp_path / "run", tmp_path / "victim"
+    shutil.copytree(syn_run, run)
+    victim.write_bytes(b"precious")
+    (run / name).unlink(missing_ok=True)
+    (run / name).symlink_to(victim)
+    r = run_fviz("eval", "--resume", "--out-dir", run, *SYN)
+    assert_one_line_error(r, 2, f"{run / name} is a symlink to {victim}, outside")
+    assert victim.read_bytes() == b"precious"
+
+
+def test_a_table_md_link_out_of_the_run_folder_is_never_written_through(syn_run, tmp_path):
+    run, victim = tmp_path / "run", tmp_path / "victim"
+    shutil.copytree(syn_run, run)
+    victim.write_bytes(b"precious")
+    (run / "table.md").symlink_to(victim)
+    assert_one_line_error(run_fviz("table", run), 2, "table.md is a symlink to", "outside")
+    assert victim.read_bytes() == b"precious"
+
+
+def test_resume_removes_the_cache_temporaries_a_killed_run_left(syn_run, tmp_path):
+    run = tmp_path / "run"
+    shutil.copytree(syn_run, run)
+    left = [run / ".features.h5.tmpab12cd", run / ".matches.h5.tmp9x_y", run / ".summary.md.tmpQQ"]
+    for p in left:
+        p.write_bytes(b"partial")
+    outside = tmp_path / "keep"
+    outside.write_bytes(b"k")
+    (run / ".metrics.csv.tmplink").symlink_to(outside)  # a link is never followed, only regular files go
+    ok("eval", "--resume", "--out-dir", run, *SYN)
+    assert not any(p.exists() for p in left)
+    assert outside.read_bytes() == b"k"

@@ -69,6 +69,10 @@ def train(
     try:
         # one training per out_dir (rank 0 holds it for all ranks): a second one is refused, naming the first
         with locked(out_dir, "train.out_dir") if main else contextlib.nullcontext():
+            if main:
+                from fviz.run.execute import remove_leftovers
+
+                remove_leftovers(out_dir, TRAIN_OUTPUTS)  # what a killed run left (the lock is ours)
             result = run_training(config, resume=resume, progress=main, console=console)
     except TrainingInterrupted as exc:
         if main:

@@ -651,8 +651,22 @@ def _check_outputs(out_dir: Path) -> None:
     from fviz.atomic import target
     from fviz.run.config import CSV_FILE, PARQUET_FILE, RRD_FILE, RUN_FILE, SUMMARY_FILE, SUMMARY_JSON
 
-    for name in (RUN_FILE, CSV_FILE, PARQUET_FILE, SUMMARY_FILE, SUMMARY_JSON, RRD_FILE, "features.h5", "matches.h5"):
+    names = (RUN_FILE, CSV_FILE, PARQUET_FILE, SUMMARY_FILE, SUMMARY_JSON, RRD_FILE, "features.h5", "matches.h5")
+    for name in names:
         target(out_dir / name)
+    remove_leftovers(out_dir, names)
+
+
+def remove_leftovers(folder: Path, names) -> None:
+    """Remove the temporary files (``.NAME.tmp*``, regular files only) a killed run left beside ``names``: the
+    caller holds the folder's lock, so no other fviz is writing them."""
+    import stat
+
+    for name in names:
+        for p in folder.glob(f".{name}.tmp*"):
+            with contextlib.suppress(OSError):
+                if stat.S_ISREG(os.lstat(p).st_mode):
+                    p.unlink()
 
 
 def _run_eval(config: RunConfig, out_dir: str | Path, workers: int | None = None, resume: bool = False,
