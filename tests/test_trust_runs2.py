@@ -379,3 +379,23 @@ def test_resume_removes_the_cache_temporaries_a_killed_run_left(syn_run, tmp_pat
     ok("eval", "--resume", "--out-dir", run, *SYN)
     assert not any(p.exists() for p in left)
     assert outside.read_bytes() == b"k"
+
+
+# ------------------------------------------------------------------------------ unclear errors
+
+
+def test_merge_of_shards_with_other_settings_names_the_option_and_both_values(tmp_path):
+    base = ("eval", "--synthetic", "--seeds", "0:2", "-e", "8point", "--workers", "1", "--no-progress")
+    ok(*base, "--shard", "0/2", "--max-keypoints", "300", "--out-dir", tmp_path / "s0")
+    ok(*base, "--shard", "1/2", "--max-keypoints", "200", "--out-dir", tmp_path / "s1")
+    r = run_fviz("merge", tmp_path / "s0", tmp_path / "s1", "--out-dir", tmp_path / "m")
+    assert_one_line_error(r, 2, f"merge: {tmp_path / 's1'} was run with other settings than {tmp_path / 's0'}",
+                          f"--max-keypoints 300 in {tmp_path / 's0'}, 200 in {tmp_path / 's1'}")
+
+
+def test_an_input_size_too_small_names_the_recipe_key(tmp_path):
+    recipe = train_recipe(tmp_path, tmp_path / "out")
+    r = run_fviz("train", recipe, "--set", "model.input_size=[16, 40]")
+    assert_one_line_error(r, 2, f"recipe {recipe}", "model.input_size [16, 40]: the synthetic scenes need a height (H) "
+                          "of 32 to 8192 pixels, got 16")
+    assert not (tmp_path / "out").exists()

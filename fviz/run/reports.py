@@ -17,6 +17,7 @@ from fviz.atomic import WriteError, replacing, write_text
 from fviz.data.pair import PairId
 from fviz.errors import FvizError, Interrupted
 from fviz.evaluate import GT_NAME, PairResult
+from fviz.run.config import _FLAGS, _flatten, _show  # noqa: E402  (a refused merge names the flags)
 from fviz.run.config import (
     CSV_FILE, INT_COLUMNS, PAPER_COLUMNS, PAPER_NORMS, PARQUET_FILE, PERCENTILES, RESULTS_FILE, RRD_FILE,
     RUN_FILE, SUMMARY_FILE, SUMMARY_JSON, SUMMARY_METRICS, TEXT_COLUMNS, RunConfig,
@@ -523,7 +524,13 @@ def merge_runs(dirs: list[Path], out_dir: Path) -> RunOutcome:
     first = configs[0]
     for d, c in zip(dirs, configs):
         if c.comparable() != first.comparable() or c.estimator_names() != first.estimator_names():
-            raise FvizError(f"merge: {d} was run with other options than {dirs[0]}")
+            ours, theirs = _flatten(first.comparable()), _flatten(c.comparable())
+            diff = [f"{_FLAGS.get(k, k)} {_show(k, ours.get(k))} in {dirs[0]}, {_show(k, theirs.get(k))} in {d}"
+                    for k in sorted(ours.keys() | theirs.keys()) if ours.get(k) != theirs.get(k)]
+            if c.estimator_names() != first.estimator_names():
+                diff.append(f"--estimator {','.join(first.estimator_names())} in {dirs[0]}, "
+                            f"{','.join(c.estimator_names())} in {d}")
+            raise FvizError(f"merge: {d} was run with other settings than {dirs[0]}: {'; '.join(diff)}")
     with locked(out_dir):
         return _merge_into(dirs, Path(out_dir), replace(first, shard=None))
 
