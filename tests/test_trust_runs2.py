@@ -399,3 +399,24 @@ def test_an_input_size_too_small_names_the_recipe_key(tmp_path):
     assert_one_line_error(r, 2, f"recipe {recipe}", "model.input_size [16, 40]: the synthetic scenes need a height (H) "
                           "of 32 to 8192 pixels, got 16")
     assert not (tmp_path / "out").exists()
+
+
+def test_inspect_with_seven_matches_runs_the_estimators_that_need_seven(kitti_root, tmp_path):
+    seq, _, _, K0, T_temporal, _ = kitti_pairs(kitti_root)
+    rng = np.random.default_rng(3)
+    x_a = rng.uniform([100, 60], [1100, 320], (7, 2))
+    X = np.c_[x_a, np.ones(7)] @ np.linalg.inv(K0).T * rng.uniform(6, 40, (7, 1))
+    x = (X @ T_temporal[:3, :3].T + T_temporal[:3, 3]) @ K0.T
+    x_b = x[:, :2] / x[:, 2:]
+    matches = tmp_path / "seven.txt"
+    matches.write_text("".join(f"{a[0]} {a[1]} {b[0]} {b[1]}\n" for a, b in zip(x_a, x_b)))
+    args = ("inspect", "pair", "--image-a", seq / "image_0" / "000003.png", "--image-b", seq / "image_0" / "000004.png",
+            "--matches", matches, "--out", tmp_path / "p.rrd")
+    r = run_fviz(*args, "-e", "7point")
+    assert r.returncode == 0 and "needed" not in r.stderr, r.stderr
+    both = run_fviz(*args, "-e", "7point", "-e", "8point")  # 8point fails on its own, the pair does not
+    assert both.returncode == 1 and "error: estimator 8point" in both.stderr and "needed); recorded" not in both.stderr, both.stderr
+    six = tmp_path / "six.txt"
+    six.write_text("".join(matches.read_text().splitlines(keepends=True)[:6]))
+    r6 = run_fviz(*args[:-4], "--matches", six, "--out", tmp_path / "p6.rrd", "-e", "7point")
+    assert r6.returncode == 2 and "only 6 matches" in r6.stderr and "Traceback" not in r6.stderr, r6.stderr

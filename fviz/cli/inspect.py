@@ -130,7 +130,7 @@ def pair(
     from fviz.errors import FvizError
     from fviz.estimators.options import EstimatorOptions
     from fviz.estimators.registry import DEFAULT_ESTIMATORS
-    from fviz.evaluate import MIN_MATCHES, evaluate_pair
+    from fviz.evaluate import MIN_MATCHES, evaluate_pair, too_few_matches
     from fviz.record.writer import write_pair_recording
 
     names, threshold = o.thresholds(tuple(estimator or DEFAULT_ESTIMATORS), threshold)
@@ -177,7 +177,7 @@ def pair(
         from fviz.cli.browse import serve
 
         serve(path, bind, port, web_port)
-    if result.n_matches < MIN_MATCHES:
+    if too_few_matches(result):
         raise FvizError(
             f"only {result.n_matches} matches between {p.extra.get('path_a', 'image a')} and "
             f"{p.extra.get('path_b', 'image b')} ({MIN_MATCHES} needed); recorded in {path}"

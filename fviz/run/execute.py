@@ -14,7 +14,7 @@ from typing import Any, Callable
 from fviz.data.pair import PairId
 from fviz.atomic import WriteError
 from fviz.errors import FvizError
-from fviz.evaluate import MIN_MATCHES
+from fviz.evaluate import MIN_MATCHES, too_few_matches
 from fviz.prestart import WORKER_PRELOAD
 from fviz.run.config import MIN_PAIRS_PER_WORKER, RESULTS_FILE, RunConfig, prepare, resolve_estimators
 from fviz.run.hloc_cache import CacheWriter
@@ -104,7 +104,7 @@ class PairEvaluator:
         try:
             pair, result = self.evaluate(pid, only)
             rec["result"] = result.to_dict()
-            if result.n_matches < MIN_MATCHES:
+            if too_few_matches(result):
                 rec["error"] = f"only {result.n_matches} matches ({MIN_MATCHES} needed)"
             rec["diagnostics"] = self.diagnose(pair, result, two_view=False)  # triage adds it where it lists the pair
             if self.config.full:
