@@ -420,3 +420,18 @@ def test_inspect_with_seven_matches_runs_the_estimators_that_need_seven(kitti_ro
     six.write_text("".join(matches.read_text().splitlines(keepends=True)[:6]))
     r6 = run_fviz(*args[:-4], "--matches", six, "--out", tmp_path / "p6.rrd", "-e", "7point")
     assert r6.returncode == 2 and "only 6 matches" in r6.stderr and "Traceback" not in r6.stderr, r6.stderr
+
+
+# ------------------------------------------------------------------------------ a crashing user estimator
+
+
+@pytest.mark.parametrize("workers", ["1", "2"])
+def test_a_segfaulting_user_estimator_fails_its_pair_and_the_small_run_goes_on(tmp_path, workers):
+    crash = Path(__file__).resolve().parent / "faults" / "crash_estimators.py"
+    run = tmp_path / "run"
+    r = run_fviz("eval", "--synthetic", "--seeds", "0:2", "-e", "8point", "-e", f"{crash}:segfault_on_1",
+                 "--max-keypoints", "300", "--workers", workers, "--no-progress", "--out-dir", run)
+    assert r.returncode in (0, 1) and "Traceback" not in r.stderr, (r.returncode, r.stderr)
+    recs = {rec["index"]: rec for rec in lines(run / "results.jsonl")}
+    assert recs[0]["error"] is None and recs[1]["error"] == "the worker process evaluating this pair died"
+    assert (run / "summary.md").is_file() and (run / "metrics.csv").is_file()

@@ -422,6 +422,8 @@ class WorkerPool:
     get the run's configuration later (:meth:`configure`). A worker that dies fails its pair (recorded)
     and is replaced; all of them die with the main process."""
 
+    isolating = False  # True: one worker for a small run, so that a crash in a user's estimator fails only its pair
+
     def __init__(self, n: int, preload: tuple[str, ...] = WORKER_PRELOAD):
         from fviz import prestart
 
@@ -507,12 +509,17 @@ def start_pool(config: RunConfig, workers: int, n_pairs: int) -> WorkerPool | No
     imports overlap the main process's; None when one process does it (see :func:`pool_size`)."""
     from fviz import prestart
 
+    from fviz.estimators.registry import is_user_spec
+
     n = pool_size(workers, n_pairs)
-    if n <= 1:
+    isolate = n <= 1 and n_pairs > 0 and any(is_user_spec(s) for s in config.options.names)
+    if n <= 1 and not isolate:
         prestart.take(0)  # those the command line started end here
         return None
     deep = any(name.partition(":")[0] == "deep" for name in config.options.names)
-    return WorkerPool(n, WORKER_PRELOAD + (DEEP_PRELOAD if deep else ()))
+    pool = WorkerPool(max(n, 1), WORKER_PRELOAD + (DEEP_PRELOAD if deep else ()))
+    pool.isolating = isolate  # a user's estimator that crashes (a segfault) fails its pair, not the run
+    return pool
 
 
 def usable_cores() -> int:
@@ -539,6 +546,8 @@ def _execute(config: RunConfig, todo: list[tuple[int, PairId]], pool: WorkerPool
     After the first interrupt no pair starts; after the second, pairs in flight are abandoned.
     """
     workers = pool_size(len(pool) if pool else 1, len(todo))
+    if pool is not None and pool.isolating and todo:
+        workers = max(workers, 1)  # user estimators: in a worker process even for a few pairs (start_pool)
     schedule = FrameSchedule(todo, schedule_window(todo, workers))
     deep = DeepBatches.of(config) if todo else None
     batched = deep.names if deep else ()
@@ -549,7 +558,7 @@ def _execute(config: RunConfig, todo: list[tuple[int, PairId]], pool: WorkerPool
             task.only = (only or {}).get(task.pid.name)
         return deep.attach(task, schedule) if deep and task else task
 
-    if workers <= 1:
+    if workers < 1 or (workers == 1 and not (pool is not None and pool.isolating)):
         if pool is not None:
             pool.close(kill=True)
         evaluator = PairEvaluator(config, out_dir, batched=batched)
