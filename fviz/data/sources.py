@@ -173,7 +173,9 @@ def reader_digest(reader, pid: PairId) -> str | None:
         stems = (Path(pid.image_a).stem, Path(pid.image_b).stem)
         names = [pattern.format(stem0=stems[0], stem1=stems[1]), pattern.format(stem0=stems[1], stem1=stems[0])]
         return _digest_of(*(f"{n}:{file_digest(path / n)}" for n in names))
-    return _digest_of(*(f"{p.name}:{file_digest(p)}" for p in sorted(path.iterdir()) if p.is_file()))
+    if getattr(reader, "_folder_digest", None) is None:  # once per reader: a KITTI run asks it for every pair
+        reader._folder_digest = _digest_of(*(f"{p.name}:{file_digest(p)}" for p in sorted(path.iterdir()) if p.is_file()))
+    return reader._folder_digest
 
 
 def input_digests(source, pids) -> dict[str, str]:

@@ -469,6 +469,24 @@ def run_markdown(config: RunConfig, stats: _Stats) -> str:
                       "of the pairs below each threshold), and with `--full` the pairs' images. Every figure: summary.md."])
 
 
+def _curves_with_ground_truth(curves: dict, out_dir: Path, config: RunConfig, entries: list) -> dict:
+    """The cumulative curves over the pairs whose ground truth gives the metric (pose error: a pose; the
+    others: any), as the standard figures count them: a pair without ground truth is no miss."""
+    kinds: dict[str, list[str]] = {}
+    for _, _, rows in iter_rows(out_dir, config, entries):
+        for row in rows:
+            kinds.setdefault(row["estimator"], []).append(row.get("ground_truth") or "pose")
+    if all(k == "pose" for ks in kinds.values() for k in ks):
+        return curves
+    out = {}
+    for key, per in curves.items():
+        keep = (lambda k: k == "pose") if key == "pose_err_deg" else (lambda k: k != "none")
+        kept = {n: [v for v, k in zip(vals, kinds[n]) if keep(k)] if len(kinds.get(n, ())) == len(vals) else vals
+                for n, vals in per.items()}
+        out[key] = {n: v for n, v in kept.items() if v}  # no curve where no pair has the ground truth it needs
+    return out
+
+
 def write_recording(path: Path, out_dir: Path, config: RunConfig, summary: str = "", entries: list | None = None) -> Path:
     """eval.rrd: every pair on the ``pair`` timeline with its metric series and motion tracks, the cumulative
     error curves and the run's figures (``summary``); with ``--full`` (and a saved payload) also inspect's
@@ -491,6 +509,7 @@ def write_recording(path: Path, out_dir: Path, config: RunConfig, summary: str =
             sizes = (tuple(first["size_a"]), tuple(first["size_b"]))
     values = series_values(result for _, result, _ in iter_rows(out_dir, config, entries))  # the plots' ranges first
     curves = {key: values.get(L.metric(key), {}) for key, *_ in CURVE_METRICS}  # none before the first pair
+    curves = _curves_with_ground_truth(curves, out_dir, config, entries)
     bp = L.blueprint(names, sizes, single_pair=False, ranges=ranges_of_values(values), curves=True, run_summary=True)
     with RecordingWriter(path, "fviz-eval", bp) as w:
         log_static(w.rec, names, series=True, legend=sizes is not None)
