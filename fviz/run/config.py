@@ -408,12 +408,15 @@ class RunConfig:
         """A digest of the content the pair ``name`` is read from, where the source is a user's: its pairs-file
         line (names, rotations, cameras, pose), its COLMAP cameras and poses, its --matches / --gt-matches file.
         An edited input makes the pair's records another configuration's (evaluated again on --resume)."""
-        if "_digests" not in self.__dict__:
-            from fviz.data.sources import input_digests
-
+        if "_digests" not in self.__dict__:  # per pair, when first asked (a worker asks only for its own pairs)
             source = self.selection.source()
-            object.__setattr__(self, "_digests", input_digests(source, source.pair_ids()))
-        return self.__dict__["_digests"].get(name)
+            fn = getattr(source, "input_digest", None)
+            object.__setattr__(self, "_digests", {})
+            object.__setattr__(self, "_digest_of", (fn, {pid.name: pid for pid in source.pair_ids()} if fn else {}))
+        digests, (fn, pids) = self.__dict__["_digests"], self.__dict__["_digest_of"]
+        if name not in digests:
+            digests[name] = fn(pids[name]) if fn is not None and name in pids else None
+        return digests[name]
 
     def estimator_names(self) -> list[str]:
         """Display names, in order (``gt`` not included)."""
