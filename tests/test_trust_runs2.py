@@ -435,3 +435,30 @@ def test_a_segfaulting_user_estimator_fails_its_pair_and_the_small_run_goes_on(t
     recs = {rec["index"]: rec for rec in lines(run / "results.jsonl")}
     assert recs[0]["error"] is None and recs[1]["error"] == "the worker process evaluating this pair died"
     assert (run / "summary.md").is_file() and (run / "metrics.csv").is_file()
+
+
+def test_a_record_fingerprint_follows_an_edited_colmap_pose(tmp_path):
+    """The fingerprint of a COLMAP pair covers its cameras and poses: an edited images.txt is another input."""
+    from sources_util import fountain
+
+    from fviz.run.config import RunConfig, Selection
+    from fviz.estimators.options import EstimatorOptions
+
+    model = tmp_path / "colmap"
+    shutil.copytree(fountain() / "colmap", model)
+
+    def prints():
+        config = RunConfig(Selection(colmap=str(model), images=str(fountain() / "images")), EstimatorOptions(names=("8point",)))
+        source = config.selection.source()
+        return [config.fingerprint(pid.to_dict()) for pid in source.pair_ids()]
+
+    before = prints()
+    text = (model / "images.txt").read_text().splitlines()
+    i = next(n for n, line in enumerate(text) if line.startswith("2 "))
+    fields = text[i].split()
+    fields[5] = repr(float(fields[5]) + 0.5)  # image 2 (0001.jpg) moved by half a metre
+    text[i] = " ".join(fields)
+    (model / "images.txt").write_text("\n".join(text) + "\n")
+    after = prints()
+    changed = [a != b for a, b in zip(before, after)]
+    assert any(changed) and not all(changed)  # the pairs of image 2 only
