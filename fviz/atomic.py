@@ -1,5 +1,6 @@
 """Nothing is lost: every file fviz writes goes to a temporary file beside its target and is renamed over
-it only when complete. A symlink is written through (its target is replaced, the link stays); a folder,
+it only when complete. A symlink is written through (its target is replaced, the link stays), except one
+planted in a run or train folder that points outside it (:func:`owning`: refused); a folder,
 device node, FIFO or socket is never replaced (one-line :class:`FvizError`). On any failure or Ctrl-C the
 temporary file is removed and the previous version stays; a full disk or a size limit becomes a one-line
 error naming the file. The temporary file is made by ``tempfile.mkstemp`` in the target's folder (an
@@ -47,12 +48,46 @@ def _kind(mode: int) -> str:
     return "not a regular file"
 
 
+_OWNED: dict[Path, int] = {}  # folders fviz owns now (a run or train folder, resolved) -> nesting depth
+
+
+@contextlib.contextmanager
+def owning(folder: str | Path) -> Iterator[None]:
+    """While inside, every file written into ``folder`` (or below) stays inside it: a symlink planted there that
+    points outside is never written through (one-line FvizError), so a run never writes outside its folder."""
+    key = Path(os.path.realpath(folder))
+    _OWNED[key] = _OWNED.get(key, 0) + 1
+    try:
+        yield
+    finally:
+        _OWNED[key] -= 1
+        if not _OWNED[key]:
+            del _OWNED[key]
+
+
+def _within(path: Path, folder: Path) -> bool:
+    return path == folder or folder in path.parents
+
+
+def _check_owned(path: Path, final: Path) -> None:
+    """FvizError when ``path`` lies in a folder fviz owns now and its symlink chain ends outside that folder."""
+    if not _OWNED or final == Path(os.path.abspath(path)):
+        return
+    where = Path(os.path.realpath(Path(os.path.abspath(path)).parent))
+    for folder in _OWNED:
+        if _within(where, folder) and not _within(final, folder):
+            raise FvizError(f"{path} is a symlink to {final}, outside {folder}: fviz writes a run's files only inside "
+                            "its folder (remove the link)")
+
+
 def target(path: str | Path) -> Path:
-    """The file that writing ``path`` replaces: ``path`` itself, or the end of its symlink chain.
+    """The file that writing ``path`` replaces: ``path`` itself, or the end of its symlink chain (never outside a
+    folder fviz owns now, :func:`owning`).
 
     Raises FvizError when that is anything but a regular file or a name not taken yet."""
     path = Path(path)
     final = Path(os.path.realpath(path))  # follows symlinks, dangling ones included
+    _check_owned(path, final)
     try:
         mode = os.stat(final).st_mode
     except FileNotFoundError:

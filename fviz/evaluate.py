@@ -66,7 +66,14 @@ from fviz.geometry import (
 
 GT_NAME = "gt"
 EVAL_THRESHOLD_PX = 2.0
-MIN_MATCHES = 8
+MIN_MATCHES = 8  # what most estimators need; 7point and PoseLib work from 7 (see too_few_matches)
+
+
+def too_few_matches(result) -> bool:
+    """Whether the pair fails as a whole for want of matches: fewer than MIN_MATCHES and no estimator made an F
+    of them (7 matches are enough for 7point and PoseLib: then only the estimators that need more fail)."""
+    return result.n_matches < MIN_MATCHES and not any(
+        r.F is not None and not r.error for r in result.estimators if r.name != GT_NAME)
 
 
 @dataclass

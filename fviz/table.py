@@ -136,6 +136,7 @@ def run_figures(run_dir: Path) -> dict[str, dict]:
     from fviz.run.config import csv_number
 
     per_pair: dict[str, list[float]] = {}
+    pair_gt: dict[str, list[str]] = {}
     ground_truth: set[str] = set()
     path = run_dir / "metrics.csv"
     with open(path, newline="") as f:
@@ -144,7 +145,8 @@ def run_figures(run_dir: Path) -> dict[str, dict]:
             failed = bool(row.get("error") or row.get("pair_error"))
             per_pair.setdefault(row["estimator"], []).extend(
                 math.nan if failed else csv_number(row, k, f"{path}:{line}") for k in FIGURE_KEYS)
-    return standard_figures(per_pair, known=figures_known(ground_truth))
+            pair_gt.setdefault(row["estimator"], []).append(row.get("ground_truth") or "pose")
+    return standard_figures(per_pair, known=figures_known(ground_truth), pair_gt=pair_gt)
 
 
 def _rows(f, path: Path):
@@ -173,7 +175,10 @@ def write_table(run_dir: str | Path) -> tuple[Path, Path]:
             + EPI_CAVEAT + "\n")
     figures = ["", "## Standard figures", "", *figures_markdown(run_figures(run_dir))]
     md_path, csv_path = run_dir / "table.md", run_dir / "table.csv"
-    write_text(md_path, "\n".join(md) + "\n" + note + "\n".join(figures) + "\n")
     lines = [",".join(header)] + [",".join(f'"{c}"' if "," in c else c for c in r) for r in rows]
-    write_text(csv_path, "\n".join(lines) + "\n")
+    from fviz.atomic import owning
+
+    with owning(run_dir):  # a table.md planted as a link to a file outside the run is never written through
+        write_text(md_path, "\n".join(md) + "\n" + note + "\n".join(figures) + "\n")
+        write_text(csv_path, "\n".join(lines) + "\n")
     return md_path, csv_path

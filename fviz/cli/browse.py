@@ -74,12 +74,45 @@ def open_recording(
 
     open_rrd(path)  # one-line error on a missing, foreign or truncated file
     blueprint = tab_blueprint(path, tab) if tab is not None else None
-    if web or web_static:
-        serve(path, bind, port, web_port, blueprint, static=web_static)
-        return
-    spawn_native(path, blueprint)
-    print(f"native viewer started on {path}")
-    print(CLICK_HINT.format(path=path))
+    watched = False
+    try:
+        if web or web_static:
+            serve(path, bind, port, web_port, blueprint, static=web_static)
+            return
+        proc = spawn_native(path, blueprint)
+        if blueprint is not None:
+            remove_when_done(proc.pid, blueprint.parent)
+            watched = True
+        print(f"native viewer started on {path}")
+        print(CLICK_HINT.format(path=path))
+    finally:
+        if blueprint is not None and not watched:  # the web viewer has stopped, or the viewer never started
+            import shutil
+
+            shutil.rmtree(blueprint.parent, ignore_errors=True)
+
+
+_WATCH = """import os, shutil, sys, time
+pid = int(sys.argv[1])
+while True:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        break
+    except PermissionError:
+        pass
+    time.sleep(0.5)
+shutil.rmtree(sys.argv[2], ignore_errors=True)
+"""
+
+
+def remove_when_done(pid: int, folder: Path) -> None:
+    """Remove ``folder`` (the --tab blueprint's temporary folder) once the viewer ``pid`` has exited: a small
+    detached watcher, since ``fviz open`` returns while the native viewer runs on."""
+    import subprocess
+
+    subprocess.Popen([sys.executable, "-c", _WATCH, str(pid), str(folder)], stdin=subprocess.DEVNULL,
+                     stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
 
 
 def _fmt(v: float | None) -> str:

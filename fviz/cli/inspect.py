@@ -72,7 +72,7 @@ def pair(
     from fviz import api
     from fviz.errors import FvizError
     from fviz.estimators.registry import DEFAULT_ESTIMATORS
-    from fviz.evaluate import MIN_MATCHES
+    from fviz.evaluate import MIN_MATCHES, too_few_matches
 
     names, threshold = o.thresholds(tuple(estimator or DEFAULT_ESTIMATORS), threshold)
     if lines < 0:
@@ -115,7 +115,7 @@ def pair(
         from fviz.cli.browse import serve
 
         serve(path, bind, port, web_port)
-    if result.n_matches < MIN_MATCHES:
+    if too_few_matches(result):
         raise FvizError(
             f"only {result.n_matches} matches between {p.extra.get('path_a', 'image a')} and "
             f"{p.extra.get('path_b', 'image b')} ({MIN_MATCHES} needed); recorded in {path}"

@@ -48,18 +48,20 @@ def train(
     """Train a fundamental-matrix network from a recipe; writes last.pt, model.pt and train.rrd to train.out_dir."""
     from rich.console import Console
 
-    from fviz.train.loop import TrainingInterrupted, output_dir
+    from fviz.train.loop import TrainingInterrupted, check_fresh, output_dir
     from fviz.train.loop import train as run_training
     from fviz.train.recipe import load_recipe
 
-    from fviz.atomic import target
+    from fviz.atomic import owning, target
     from fviz.run.store import locked
 
     console = Console(stderr=True)
     config = load_recipe(recipe, list(set_))
     out_dir = output_dir(config)
-    for name in TRAIN_OUTPUTS:  # a folder (or FIFO ...) where an output goes: refused now, not after training
-        target(out_dir / name)
+    with owning(out_dir):  # a folder (or FIFO, or a link out of out_dir ...) where an output goes: refused now
+        for name in TRAIN_OUTPUTS:
+            target(out_dir / name)
+    check_fresh(out_dir, resume)
     main = int(os.environ.get("RANK", "0")) == 0  # under torchrun only rank 0 talks
     if main:
         console.print(f"training [bold]{config.model.variant}[/] at {config.input_hw[0]}x{config.input_hw[1]} "
@@ -67,6 +69,10 @@ def train(
     try:
         # one training per out_dir (rank 0 holds it for all ranks): a second one is refused, naming the first
         with locked(out_dir, "train.out_dir") if main else contextlib.nullcontext():
+            if main:
+                from fviz.run.execute import remove_leftovers
+
+                remove_leftovers(out_dir, TRAIN_OUTPUTS)  # what a killed run left (the lock is ours)
             result = run_training(config, resume=resume, progress=main, console=console)
     except TrainingInterrupted as exc:
         if main:

@@ -356,6 +356,13 @@ class ColmapSource:
         va, vb, T = self._motion(pid)
         return normalize(fundamental_from_motion(va.K, vb.K, T[:3, :3], T[:3, 3]), "fbn")
 
+    def input_digest(self, pid: PairId) -> str:
+        """The pair's two registered images as the model holds them (names, cameras, poses)."""
+        from fviz.data.sources import _digest_of
+
+        va, vb = self.views[pid.frame_a], self.views[pid.frame_b]
+        return _digest_of(va.name, va.K, va.T, vb.name, vb.K, vb.T)
+
     def inspect_args(self, pid: PairId) -> list[str]:
         args = ["--colmap", str(self.model), "--images", str(self.images),
                 "--index", str(self.pairs.index((pid.frame_a, pid.frame_b)))]

@@ -148,6 +148,16 @@ def get_estimator(spec: str, cfg: RobustConfig = RobustConfig()) -> EstimateFn:
     raise FvizError(f"--estimator {spec!r}: unknown (built-in: {', '.join(BUILTINS)}; or deep:PATH, module:function, and in eval/triage oracle-mean, mean:SEL)")
 
 
+def is_user_spec(spec: str) -> bool:
+    """Whether ``spec`` names a user's own function (``module:function``, ``file.py:function``): code fviz does not
+    know, which may crash the process it runs in (eval then runs it in a worker process, whatever the run's size)."""
+    from fviz.estimators.sweep import split_threshold
+
+    head = spec.partition(":")[0]
+    return (":" in spec and head != "deep" and spec not in BUILTINS and not is_run_baseline(spec)
+            and split_threshold(spec)[1] is None)
+
+
 def _name_levels(spec: str) -> list[str]:
     """Ever longer names of a spec: ``deep:runs/a/model.pt`` -> deep-model, deep-a-model, deep-runs-a-model;
     ``pkg.mod:fn`` -> fn, pkg.mod.fn; a built-in -> itself."""

@@ -91,6 +91,9 @@ def oracle_estimator(fns):
     from fviz.geometry import is_valid, symmetric_epipolar_distance
 
     def estimate(pair, x_a, x_b):
+        if getattr(pair, "F_gt", None) is None:
+            raise FvizError("needs ground truth: the per-pair oracle keeps the threshold whose F is closest to it, "
+                             "and this pair has none")
         near = symmetric_epipolar_distance(pair.F_gt, x_a, x_b) < ORACLE_GT_PX
         best, errors = None, []
         for fn in fns:

@@ -45,6 +45,26 @@ def _unreadable_reason(exc: Exception) -> str:
     return f"torch cannot read it ({type(exc).__name__})"
 
 
+def state_digest(ckpt: dict[str, Any]) -> str:
+    """sha256 of what a model is rebuilt from: variant, model_config and every tensor of model_state (name,
+    dtype, shape, bytes). Written as ``state_digest`` with the file; :func:`read_checkpoint` checks it."""
+    import hashlib
+    import json
+
+    h = hashlib.sha256()
+    h.update(json.dumps([ckpt.get("variant"), ckpt.get("model_config")], sort_keys=True, default=str).encode())
+    for name in sorted(ckpt["model_state"]):
+        v = ckpt["model_state"][name]
+        h.update(f"\x00{name}".encode())
+        if isinstance(v, torch.Tensor):
+            t = v.detach().to("cpu").contiguous().reshape(-1)
+            h.update(f"{v.dtype}{tuple(v.shape)}".encode())
+            h.update(t.view(torch.uint8).numpy().tobytes() if t.numel() else b"")
+        else:
+            h.update(repr(v).encode())
+    return h.hexdigest()
+
+
 def read_checkpoint(path: str | Path) -> dict[str, Any]:
     """Load and check a model file; FvizError when it is missing or not an fviz model."""
     path = Path(path)
@@ -69,6 +89,10 @@ def read_checkpoint(path: str | Path) -> dict[str, Any]:
     for key in ("model_config", "model_state"):
         if not isinstance(ckpt.get(key), dict):
             raise FvizError(f"{path}: not an fviz model checkpoint (no {key})")
+    stored = ckpt.get("state_digest")  # files of fviz before the digest have none (the bundled weights among them)
+    if stored is not None and (not isinstance(stored, str) or stored != state_digest(ckpt)):
+        raise FvizError(f"{path}: damaged: its weights do not match the digest written with them (state_digest); "
+                        "the file changed after fviz wrote it (retrain, or restore it from a copy)")
     return ckpt
 
 

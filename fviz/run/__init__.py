@@ -6,8 +6,9 @@ A run lives in one ``--out-dir``::
     results.jsonl    one JSON record per finished pair, appended and flushed as pairs finish: the
                      source of truth (``--resume`` skips the pairs it holds and adds only the estimators a
                      pair lacks; a later record of a pair supersedes an earlier one; a line cut by a crash,
-                     a line that is not a record, and a record whose fingerprint of settings and pair is
-                     not the run's are ignored, with a warning)
+                     a line that is not a record, and a record whose fingerprint of settings, pair and
+                     inputs (the pair's pairs-file line, COLMAP cameras and poses, --matches / --gt-matches
+                     files, by content) is not the run's are ignored, with a warning)
     metrics.csv      PairResult.rows() of every pair: one row per pair x estimator, ``gt`` included
     metrics.parquet  the same rows
     summary.md       standard figures (pose AUC, NSGD recall, median SED / Sampson, failures), per-estimator

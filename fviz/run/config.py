@@ -407,7 +407,24 @@ class RunConfig:
             object.__setattr__(self, "_fingerprinted", {"options": d["options"], "norm": d["norm"],
                                                         "eval_threshold": float(d["eval_threshold"])})
         settings = {**self.__dict__["_fingerprinted"], "pair": {k: v for k, v in ref.items() if k != "name"}}
+        inputs = self.input_digest(ref.get("name"))
+        if inputs is not None:  # KITTI and synthetic pairs have none (their records keep their fingerprints)
+            settings["inputs"] = inputs
         return hashlib.sha256(json.dumps(settings, sort_keys=True).encode()).hexdigest()[:20]
+
+    def input_digest(self, name: str | None) -> str | None:
+        """A digest of the content the pair ``name`` is read from, where the source is a user's: its pairs-file
+        line (names, rotations, cameras, pose), its COLMAP cameras and poses, its --matches / --gt-matches file.
+        An edited input makes the pair's records another configuration's (evaluated again on --resume)."""
+        if "_digests" not in self.__dict__:  # per pair, when first asked (a worker asks only for its own pairs)
+            source = self.selection.source()
+            fn = getattr(source, "input_digest", None)
+            object.__setattr__(self, "_digests", {})
+            object.__setattr__(self, "_digest_of", (fn, {pid.name: pid for pid in source.pair_ids()} if fn else {}))
+        digests, (fn, pids) = self.__dict__["_digests"], self.__dict__["_digest_of"]
+        if name not in digests:
+            digests[name] = fn(pids[name]) if fn is not None and name in pids else None
+        return digests[name]
 
     def estimator_names(self) -> list[str]:
         """Display names, in order (``gt`` not included)."""
@@ -484,6 +501,11 @@ def baseline_selections(sel: Selection, spec: str) -> list[Selection]:
     if spec == ORACLE_MEAN:
         return [sel]
     what = spec[len(MEAN_PREFIX):]
+    if sel.user:
+        source = "--pairs" if sel.pairs and not sel.colmap else "--colmap" if sel.colmap else "--image-a/--image-b"
+        raise FvizError(f"--estimator {spec}: mean:SEQ averages the ground truth of other KITTI sequences (mean:A:B: "
+                        f"other synthetic seeds); a {source} run has no sequence to average: use oracle-mean (the "
+                        "evaluated pairs' own mean F, an oracle) or ahead")
     if sel.synthetic:
         try:
             a, b = (int(v) for v in what.split(":"))
@@ -515,9 +537,14 @@ def baseline_fundamental(sel: Selection, spec: str) -> np.ndarray:
             source = s.source()
             for pid in source.pair_ids():
                 try:
-                    yield source.ground_truth(pid)
+                    F = source.ground_truth(pid)
                 except FvizError as exc:  # a pair without F (no motion): the baseline is the mean of the others
                     skipped.append(str(exc))
+                    continue
+                if F is None:  # a pair without ground truth (a names-only pairs line)
+                    skipped.append(f"the pair {pid.name} has no ground truth")
+                else:
+                    yield F
 
     try:
         F = mean_fundamental(all_gt())

@@ -14,7 +14,7 @@ from typing import Any, Callable
 from fviz.data.pair import PairId
 from fviz.atomic import WriteError
 from fviz.errors import FvizError
-from fviz.evaluate import MIN_MATCHES
+from fviz.evaluate import MIN_MATCHES, too_few_matches
 from fviz.prestart import WORKER_PRELOAD
 from fviz.run.config import MIN_PAIRS_PER_WORKER, RESULTS_FILE, RunConfig, prepare, resolve_estimators
 from fviz.run.hloc_cache import CacheWriter
@@ -104,7 +104,7 @@ class PairEvaluator:
         try:
             pair, result = self.evaluate(pid, only)
             rec["result"] = result.to_dict()
-            if result.n_matches < MIN_MATCHES:
+            if too_few_matches(result):
                 rec["error"] = f"only {result.n_matches} matches ({MIN_MATCHES} needed)"
             rec["diagnostics"] = self.diagnose(pair, result, two_view=False)  # triage adds it where it lists the pair
             if self.config.full:
@@ -422,6 +422,8 @@ class WorkerPool:
     get the run's configuration later (:meth:`configure`). A worker that dies fails its pair (recorded)
     and is replaced; all of them die with the main process."""
 
+    isolating = False  # True: one worker for a small run, so that a crash in a user's estimator fails only its pair
+
     def __init__(self, n: int, preload: tuple[str, ...] = WORKER_PRELOAD):
         from fviz import prestart
 
@@ -507,12 +509,17 @@ def start_pool(config: RunConfig, workers: int, n_pairs: int) -> WorkerPool | No
     imports overlap the main process's; None when one process does it (see :func:`pool_size`)."""
     from fviz import prestart
 
+    from fviz.estimators.registry import is_user_spec
+
     n = pool_size(workers, n_pairs)
-    if n <= 1:
+    isolate = n <= 1 and n_pairs > 0 and any(is_user_spec(s) for s in config.options.names)
+    if n <= 1 and not isolate:
         prestart.take(0)  # those the command line started end here
         return None
     deep = any(name.partition(":")[0] == "deep" for name in config.options.names)
-    return WorkerPool(n, WORKER_PRELOAD + (DEEP_PRELOAD if deep else ()))
+    pool = WorkerPool(max(n, 1), WORKER_PRELOAD + (DEEP_PRELOAD if deep else ()))
+    pool.isolating = isolate  # a user's estimator that crashes (a segfault) fails its pair, not the run
+    return pool
 
 
 def usable_cores() -> int:
@@ -539,6 +546,8 @@ def _execute(config: RunConfig, todo: list[tuple[int, PairId]], pool: WorkerPool
     After the first interrupt no pair starts; after the second, pairs in flight are abandoned.
     """
     workers = pool_size(len(pool) if pool else 1, len(todo))
+    if pool is not None and pool.isolating and todo:
+        workers = max(workers, 1)  # user estimators: in a worker process even for a few pairs (start_pool)
     schedule = FrameSchedule(todo, schedule_window(todo, workers))
     deep = DeepBatches.of(config) if todo else None
     batched = deep.names if deep else ()
@@ -549,7 +558,7 @@ def _execute(config: RunConfig, todo: list[tuple[int, PairId]], pool: WorkerPool
             task.only = (only or {}).get(task.pid.name)
         return deep.attach(task, schedule) if deep and task else task
 
-    if workers <= 1:
+    if workers < 1 or (workers == 1 and not (pool is not None and pool.isolating)):
         if pool is not None:
             pool.close(kill=True)
         evaluator = PairEvaluator(config, out_dir, batched=batched)
@@ -641,7 +650,32 @@ def run_eval(config: RunConfig, out_dir: str | Path, workers: int | None = None,
              progress: bool = True) -> RunOutcome:
     """:func:`_run_eval` holding the lock of ``out_dir`` (another run into it is refused)."""
     with locked(out_dir):
+        _check_outputs(Path(out_dir))
         return _run_eval(config, out_dir, workers, resume, progress)
+
+
+def _check_outputs(out_dir: Path) -> None:
+    """Every file the run will replace is a regular file of the run folder (or not there yet): a folder, FIFO or a
+    link planted to point outside it is refused now, before any pair is evaluated."""
+    from fviz.atomic import target
+    from fviz.run.config import CSV_FILE, PARQUET_FILE, RRD_FILE, RUN_FILE, SUMMARY_FILE, SUMMARY_JSON
+
+    names = (RUN_FILE, CSV_FILE, PARQUET_FILE, SUMMARY_FILE, SUMMARY_JSON, RRD_FILE, "features.h5", "matches.h5")
+    for name in names:
+        target(out_dir / name)
+    remove_leftovers(out_dir, names)
+
+
+def remove_leftovers(folder: Path, names) -> None:
+    """Remove the temporary files (``.NAME.tmp*``, regular files only) a killed run left beside ``names``: the
+    caller holds the folder's lock, so no other fviz is writing them."""
+    import stat
+
+    for name in names:
+        for p in folder.glob(f".{name}.tmp*"):
+            with contextlib.suppress(OSError):
+                if stat.S_ISREG(os.lstat(p).st_mode):
+                    p.unlink()
 
 
 def _run_eval(config: RunConfig, out_dir: str | Path, workers: int | None = None, resume: bool = False,

@@ -18,6 +18,7 @@ from fviz.data.pair import PairId
 from fviz.errors import FvizError, Interrupted
 from fviz.failures import Failures, failure_markdown
 from fviz.evaluate import GT_NAME, PairResult
+from fviz.run.config import _FLAGS, _flatten, _show  # noqa: E402  (a refused merge names the flags)
 from fviz.run.config import (
     CSV_FILE, INT_COLUMNS, PAPER_COLUMNS, PAPER_NORMS, PARQUET_FILE, PERCENTILES, RESULTS_FILE, RRD_FILE,
     RUN_FILE, SUMMARY_FILE, SUMMARY_JSON, SUMMARY_METRICS, TEXT_COLUMNS, RunConfig,
@@ -80,6 +81,7 @@ class _Stats:
         self.precision: dict[str, array] = {}  # match precision per pair (fviz.geometry.precision)
         self.oracle_choice: dict[str, dict[str, int]] = {}  # sweep oracle -> {the grid entry it chose: pairs}
         self.failures = Failures()  # pair and estimator failures grouped by cause (fviz.failures)
+        self.pair_gt: dict[str, list[str]] = {}  # per estimator, each pair's ground truth (pose, F, ..., none)
 
     @property
     def known(self) -> dict[str, bool]:
@@ -102,6 +104,7 @@ class _Stats:
                 self.failed[est] = self.failed.get(est, 0) + 1
             self.per_pair.setdefault(est, array("d")).extend(
                 math.nan if failed or row.get(k) is None else float(row[k]) for k in FIGURE_KEYS)
+            self.pair_gt.setdefault(est, []).append(row.get("ground_truth") or "pose")
             for key in self.keys:
                 v = row.get(key)
                 if isinstance(v, float) and math.isfinite(v):
@@ -223,7 +226,7 @@ def summary_markdown(config: RunConfig, stats: _Stats) -> str:
         *failure_markdown(stats.failures.document()),
         "## Standard figures",
         "",
-        *figures_markdown(standard_figures(stats.per_pair, ests, stats.known)),
+        *figures_markdown(standard_figures(stats.per_pair, ests, stats.known, stats.pair_gt)),
         "",
         "## Per estimator",
     ]
@@ -294,7 +297,7 @@ def sweep_curves(config: RunConfig, stats: _Stats) -> dict[str, dict[str, Any]]:
     from fviz.estimators.registry import display_names
     from fviz.estimators.sweep import ORACLE, split_threshold
 
-    figures = standard_figures(stats.per_pair, list(stats.order))
+    figures = standard_figures(stats.per_pair, list(stats.order), pair_gt=stats.pair_gt)
     out: dict[str, dict[str, Any]] = {}
     for spec, name in zip(config.options.names, display_names(config.options.names)):
         base, th = split_threshold(spec)
@@ -320,7 +323,7 @@ def sweep_markdown(config: RunConfig, stats: _Stats) -> list[str]:
              "the run*: the threshold of the highest AUC@10°; `-th-oracle`: per pair, the threshold whose F is closest "
              "to the ground truth. Both are chosen with the labels (oracles, as glue-factory's `ransac_th=-1`).", "",
              "| estimator | threshold px | AUC@10° | median SED px | |", "|---|---|---|---|---|"]
-    figures = standard_figures(stats.per_pair, list(stats.order))
+    figures = standard_figures(stats.per_pair, list(stats.order), pair_gt=stats.pair_gt)
     for base, entry in curves.items():
         for th, (name, f) in entry["curve"].items():
             lines.append(f"| {base} | {th} | {_fmt(f['pose_auc'].get('10', math.nan))} | {_fmt(f['sed_median'])} | "
@@ -350,12 +353,16 @@ BASELINE_NOTE = (
 
 
 def standard_figures(per_pair: dict[str, Iterable[float]], order: Iterable[str] | None = None,
-                     known: dict[str, bool] | None = None) -> dict[str, dict[str, Any]]:
+                     known: dict[str, bool] | None = None,
+                     pair_gt: dict[str, list[str]] | None = None) -> dict[str, dict[str, Any]]:
     """Per estimator, from its per-pair FIGURE_KEYS (flat, NaN = failed): pairs, failed, pose AUC@5/10/20 of
     pose_err_deg (LightGlue's pose_auc; failures infinite), nsgd_recall (share of pairs with nsgd <
     NSGD_RECALL_THRESHOLD; failures miss), medians of the per-pair sed_median and sampson_median over the
     pairs that succeeded, and whether it is an oracle. ``known``: {"pose", "nsgd"} -> whether the pairs'
-    ground truth allows that figure; NaN (n/a) where it does not (no pose, no ground truth)."""
+    ground truth allows that figure; NaN (n/a) where it does not (no pose, no ground truth). ``pair_gt``: per
+    estimator, each pair's ground truth (pose, F, correspondences, none): pose AUC is then over the pairs with a
+    pose and NSGD recall over those with any ground truth (``pose_pairs``, ``gt_pairs``), never counting a pair
+    without one as a miss."""
     known = known or {"pose": True, "nsgd": True}
     from fviz.estimators.registry import is_oracle
     from fviz.geometry import AUC_THRESHOLDS_DEG, NSGD_RECALL_THRESHOLD, pose_auc
@@ -365,10 +372,14 @@ def standard_figures(per_pair: dict[str, Iterable[float]], order: Iterable[str] 
         v = np.asarray(per_pair.get(est, []), np.float64).reshape(-1, len(FIGURE_KEYS))
         pose, nsgd_, sed, samp = v.T
         failed = int(np.isnan(sed).sum())
+        kinds = (pair_gt or {}).get(est)
+        has_pose = np.ones(len(v), bool) if kinds is None or len(kinds) != len(v) else np.array([k == "pose" for k in kinds], bool)
+        has_gt = np.ones(len(v), bool) if kinds is None or len(kinds) != len(v) else np.array([k != "none" for k in kinds], bool)
+        pose, nsgd_ = pose[has_pose], nsgd_[has_gt]
         with np.errstate(invalid="ignore"):
-            recall = float(np.mean(np.nan_to_num(nsgd_, nan=np.inf) < NSGD_RECALL_THRESHOLD)) if len(v) else math.nan
+            recall = float(np.mean(np.nan_to_num(nsgd_, nan=np.inf) < NSGD_RECALL_THRESHOLD)) if len(nsgd_) else math.nan
         out[est] = {
-            "pairs": len(v), "failed": failed,
+            "pairs": len(v), "failed": failed, "pose_pairs": int(has_pose.sum()), "gt_pairs": int(has_gt.sum()),
             "pose_auc": {f"{t:g}": a if known["pose"] else math.nan for t, a in zip(AUC_THRESHOLDS_DEG, pose_auc(pose))},
             "nsgd_recall": recall if known["nsgd"] else math.nan,
             "sed_median": float(np.nanmedian(sed)) if failed < len(v) else math.nan,
@@ -393,6 +404,11 @@ def figures_markdown(figures: dict[str, dict[str, Any]]) -> list[str]:
                      + " | ".join(_fmt(a) for a in f["pose_auc"].values())
                      + f" | {_fmt(f['nsgd_recall'])} | {_fmt(f['sed_median'])} | {_fmt(f['sampson_median'])} | "
                      f"{f['failed']}/{f['pairs']} |")
+    partial = [f"{_display(e)}: pose AUC over {f['pose_pairs']} and NSGD recall over {f['gt_pairs']} of {f['pairs']} pairs"
+               for e, f in figures.items() if f.get("pose_pairs", f["pairs"]) < f["pairs"] or f.get("gt_pairs", f["pairs"]) < f["pairs"]]
+    if partial:
+        lines += ["", "Only the pairs with ground truth count in the figures (a pose for AUC, any ground truth for NSGD "
+                  "recall): " + "; ".join(partial[:1]) + (" (likewise the others)" if len(partial) > 1 else "") + "."]
     lines += [
         "",
         "Pose AUC: area under the recall curve of max(rotation error, translation-direction error) up to each threshold, "
@@ -407,7 +423,7 @@ def figures_markdown(figures: dict[str, dict[str, Any]]) -> list[str]:
 def summary_document(config: RunConfig, stats: _Stats) -> dict[str, Any]:
     """summary.json: the standard figures per estimator, machine-readable (NaN written as null)."""
     ests = list(stats.order) or config.series_names()
-    figures = standard_figures(stats.per_pair, ests, stats.known)
+    figures = standard_figures(stats.per_pair, ests, stats.known, stats.pair_gt)
     clean = lambda v: v if not isinstance(v, float) or math.isfinite(v) else None  # noqa: E731
     return {
         "selection": config.selection.describe(), "pairs": stats.pairs, "pairs_failed": stats.pair_errors,
@@ -458,6 +474,24 @@ def run_markdown(config: RunConfig, stats: _Stats) -> str:
                       "of the pairs below each threshold), and with `--full` the pairs' images. Every figure: summary.md."])
 
 
+def _curves_with_ground_truth(curves: dict, out_dir: Path, config: RunConfig, entries: list) -> dict:
+    """The cumulative curves over the pairs whose ground truth gives the metric (pose error: a pose; the
+    others: any), as the standard figures count them: a pair without ground truth is no miss."""
+    kinds: dict[str, list[str]] = {}
+    for _, _, rows in iter_rows(out_dir, config, entries):
+        for row in rows:
+            kinds.setdefault(row["estimator"], []).append(row.get("ground_truth") or "pose")
+    if all(k == "pose" for ks in kinds.values() for k in ks):
+        return curves
+    out = {}
+    for key, per in curves.items():
+        keep = (lambda k: k == "pose") if key == "pose_err_deg" else (lambda k: k != "none")
+        kept = {n: [v for v, k in zip(vals, kinds[n]) if keep(k)] if len(kinds.get(n, ())) == len(vals) else vals
+                for n, vals in per.items()}
+        out[key] = {n: v for n, v in kept.items() if v}  # no curve where no pair has the ground truth it needs
+    return out
+
+
 def write_recording(path: Path, out_dir: Path, config: RunConfig, summary: str = "", entries: list | None = None) -> Path:
     """eval.rrd: every pair on the ``pair`` timeline with its metric series and motion tracks, the cumulative
     error curves and the run's figures (``summary``); with ``--full`` (and a saved payload) also inspect's
@@ -480,6 +514,7 @@ def write_recording(path: Path, out_dir: Path, config: RunConfig, summary: str =
             sizes = (tuple(first["size_a"]), tuple(first["size_b"]))
     values = series_values(result for _, result, _ in iter_rows(out_dir, config, entries))  # the plots' ranges first
     curves = {key: values.get(L.metric(key), {}) for key, *_ in CURVE_METRICS}  # none before the first pair
+    curves = _curves_with_ground_truth(curves, out_dir, config, entries)
     bp = L.blueprint(names, sizes, single_pair=False, ranges=ranges_of_values(values), curves=True, run_summary=True)
     with RecordingWriter(path, "fviz-eval", bp) as w:
         log_static(w.rec, names, series=True, legend=sizes is not None)
@@ -513,7 +548,13 @@ def merge_runs(dirs: list[Path], out_dir: Path) -> RunOutcome:
     first = configs[0]
     for d, c in zip(dirs, configs):
         if c.comparable() != first.comparable() or c.estimator_names() != first.estimator_names():
-            raise FvizError(f"merge: {d} was run with other options than {dirs[0]}")
+            ours, theirs = _flatten(first.comparable()), _flatten(c.comparable())
+            diff = [f"{_FLAGS.get(k, k)} {_show(k, ours.get(k))} in {dirs[0]}, {_show(k, theirs.get(k))} in {d}"
+                    for k in sorted(ours.keys() | theirs.keys()) if ours.get(k) != theirs.get(k)]
+            if c.estimator_names() != first.estimator_names():
+                diff.append(f"--estimator {','.join(first.estimator_names())} in {dirs[0]}, "
+                            f"{','.join(c.estimator_names())} in {d}")
+            raise FvizError(f"merge: {d} was run with other settings than {dirs[0]}: {'; '.join(diff)}")
     with locked(out_dir):
         return _merge_into(dirs, Path(out_dir), replace(first, shard=None))
 

@@ -101,7 +101,8 @@ def merge_record(old: dict[str, Any], new: dict[str, Any], order: list[str]) -> 
     names = [n for n in order if n in have or n in got or n in new["estimators"]]
     names += [n for n in old["estimators"] if n not in names]
     failed = EstimatorResult("", None, {}, 0.0, f"pair failed when this estimator was added: {new['error']}").to_dict()
-    ests = [have[GT_NAME]] + [have.get(n) or got.get(n) or {**failed, "name": n} for n in names]
+    gt = [have[GT_NAME]] if GT_NAME in have else []  # a pair without ground truth has no gt entry
+    ests = gt + [have.get(n) or got.get(n) or {**failed, "name": n} for n in names]
     diag_old, diag_new = old.get("diagnostics"), new.get("diagnostics")
     diag = diag_old if not (diag_old and diag_new) else {
         **diag_old, "estimators": {**diag_new["estimators"], **diag_old["estimators"]}}
@@ -328,7 +329,7 @@ class ResultStore:
             out[key] = Entry(self.path, off, indices[key] if indices else rec["index"], tuple(rec["estimators"]),
                              rec.get("result") is not None, size if isinstance(size, int) else None)
         if other or outside:
-            parts = [f"{other} made with other settings (or without a fingerprint)"] * bool(other)
+            parts = [f"{other} made with other settings or inputs (or without a fingerprint)"] * bool(other)
             parts += [f"{outside} of pairs outside the run's selection"] * bool(outside)
             _warn_once(f"warning: {self.path}: {other + outside} records ignored ({', '.join(parts)}); "
                        "only records of this run's pairs and settings are used")
@@ -508,10 +509,13 @@ def locked(out_dir: str | Path, flag: str = "--out-dir") -> Iterator[None]:
         finally:
             _held[key] -= 1
         return
+    from fviz.atomic import owning
+
     fd = _acquire(out_dir, flag)
     _held[key] = 1
     try:
-        yield
+        with owning(out_dir):
+            yield
     finally:
         del _held[key]
         with contextlib.suppress(OSError):

@@ -61,8 +61,16 @@ def atomic_save(obj: Any, path: str | Path) -> Path:
     """torch.save to a temporary file beside ``path``, then rename over it."""
     from fviz.atomic import replacing
 
-    with replacing(path) as tmp:
-        torch.save(obj, tmp)
+    if isinstance(obj, dict) and obj.get("format") == FORMAT and isinstance(obj.get("model_state"), dict):
+        obj = _sealed(obj)  # a flipped bit in the weights is refused when read back
+    from fviz.atomic import WriteError
+
+    try:
+        with replacing(path) as tmp:
+            torch.save(obj, tmp)
+    except RuntimeError as exc:  # torch's zip writer reports a full disk or a size limit as RuntimeError ("unexpected pos")
+        raise WriteError(f"cannot write {path}: the write failed, disk full or a file size limit? "
+                         f"(torch: {' '.join(str(exc).split())[:100]}); its previous version is kept") from None
     return Path(path)
 
 
@@ -101,6 +109,13 @@ def make_checkpoint(
         "recording_id": recording_id,
         "rng_state": torch.get_rng_state(),
     }
+
+
+def _sealed(ckpt: dict[str, Any]) -> dict[str, Any]:
+    """The checkpoint with its ``state_digest`` (:func:`fviz.models.weights.state_digest`)."""
+    from fviz.models.weights import state_digest
+
+    return {**ckpt, "state_digest": state_digest(ckpt)}
 
 
 def save_checkpoint(path: str | Path, model: torch.nn.Module, **kw) -> Path:

@@ -145,6 +145,18 @@ def scene_config(input_hw: tuple[int, int], extra: dict):
         return synthetic.SceneConfig(width=int(input_hw[1]), height=int(input_hw[0]), **extra)
     except TypeError as exc:
         raise FvizError(f"data.synthetic: {exc}") from None
+    except FvizError as exc:
+        text = str(exc)
+        for field, i in (("SceneConfig.width", 1), ("SceneConfig.height", 0)):
+            if text.startswith(field):  # the size is the recipe's model.input_size [H, W]: name that key
+                import re
+
+                bounds = re.search(r"\[(\d+), (\d+)\]", text)
+                span = f" of {bounds[1]} to {bounds[2]} pixels" if bounds else ""
+                raise FvizError(f"model.input_size {list(map(int, input_hw))}: the synthetic scenes need a "
+                                f"{'width (W)' if i else 'height (H)'}{span}, got {int(input_hw[i])} "
+                                "(model.input_size is [H, W])") from None
+        raise
 
 
 class SyntheticPairs(torch.utils.data.Dataset):

@@ -319,8 +319,10 @@ class _Curves:
 
     def snapshot(self) -> None:
         """Make ``path`` a complete recording of everything logged so far (atomic rename)."""
+        from fviz.atomic import commit, prepare
+
         rr = self.rr
-        tmp = self.path.with_name(f".{self.path.name}.tmp{os.getpid()}")
+        final, tmp = prepare(self.path)  # a new file of its own (never a planted link); the mode of the one replaced
         rec = rr.RecordingStream("fviz-train", recording_id=self.recording_id)
         rec.set_log_time_enabled(False)
         try:
@@ -342,7 +344,7 @@ class _Curves:
                 self.watch_seconds += time.perf_counter() - t0
             rec.flush()
             rec.disconnect()
-            os.replace(tmp, self.path)
+            commit(self.path, tmp, final)
         finally:
             tmp.unlink(missing_ok=True)
 
@@ -464,11 +466,7 @@ def train(
             raise FvizError(f"train.out_dir {out_dir}: cannot create it ({exc.strerror})") from None
         if not os.access(out_dir, os.W_OK):
             raise FvizError(f"train.out_dir {out_dir}: not writable")
-    if not resume and ckpt_path.exists():
-        raise FvizError(
-            f"{out_dir} already holds a checkpoint (last.pt): pass --resume to continue it, or choose another "
-            "train.out_dir (e.g. --set train.out_dir=runs/NEW)"
-        )
+    check_fresh(out_dir, resume)
 
     if t.threads:
         torch.set_num_threads(t.threads)
@@ -761,6 +759,20 @@ def unit_translation(model, train_ds, batch_size: int, device: torch.device) -> 
         features = model.features(img_a.to(device), img_b.to(device))
     model.train(was_training)
     return model.head.unit_translation_(features)
+
+
+def check_fresh(out_dir: Path, resume: bool) -> None:
+    """A fresh run (no --resume) into an out_dir holding last.pt or model.pt is refused: nothing is overwritten."""
+    if not resume and (out_dir / "last.pt").exists():
+        raise FvizError(
+            f"{out_dir} already holds a checkpoint (last.pt): pass --resume to continue it, or choose another "
+            "train.out_dir (e.g. --set train.out_dir=runs/NEW)"
+        )
+    if not resume and os.path.lexists(out_dir / "model.pt"):  # a finished run's weights, its last.pt removed
+        raise FvizError(
+            f"{out_dir} already holds a trained model (model.pt, without last.pt to resume): choose another "
+            "train.out_dir (e.g. --set train.out_dir=runs/NEW), or move model.pt away to train here again"
+        )
 
 
 def output_dir(recipe: Recipe) -> Path:

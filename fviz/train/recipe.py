@@ -396,6 +396,17 @@ def _build(d: dict, path: str, origin: str) -> Recipe:
         recipe.fnet_config()
     except FvizError as exc:
         raise FvizError(f"{origin}: model.variant: {exc}") from None
+    if recipe.data.source == "synthetic" and isinstance(recipe.data.synthetic, dict):
+        try:
+            import fviz.data.synthetic  # noqa: F401  (without it the data fail later, with their own message)
+        except ImportError:
+            return recipe
+        from fviz.train.data import scene_config
+
+        try:  # an input size the renderer refuses is named by its recipe key now, not when training starts
+            scene_config(recipe.input_hw, recipe.data.synthetic)
+        except FvizError as exc:
+            raise FvizError(f"{origin}: {exc}") from None
     return recipe
 
 
