@@ -44,6 +44,10 @@ GT_SUSPECT_DIRECTION_ACCURACY_SHARE = 0.1
 GT_SUSPECT_EPIPOLE_NEAR = 1.0  # the direction test only where F_gt's epipoles lie within this many image diagonals
 # of the image centres (forward motion): farther (sideways motion, rectified stereo: at infinity) a direction
 # several degrees off moves the lines by less than the matches' noise, and says nothing
+# a ground truth biased over a run (gt_bias): the tight fits' epipole on one side of F_gt's on most pairs
+GT_BIAS_MIN_PAIRS = 8
+GT_BIAS_P = 0.05  # two-sided sign test
+GT_BIAS_MIN_DEG = 0.2  # and a median offset at least this large (KITTI: 2.5 px at f = 721)
 PLANAR_FRACTION = 0.8
 SMALL_BASELINE_M = 0.1
 ROTATION_FRACTION = 0.8
@@ -319,3 +323,59 @@ def gt_suspect_note(pair, result) -> str | None:
         return None
     return (f"{GT_SUSPECT_NOTE}{suspect['why']}; the overview draws {suspect['reference']}'s lines as "
             f"the reference (reference: {suspect['reference']})")
+
+
+def _direction_deg(K: np.ndarray, e: np.ndarray) -> np.ndarray:
+    """(yaw, pitch) in degrees of the viewing ray K^-1 e through an epipole, the ray turned to look forward."""
+    r = np.linalg.solve(K, e)
+    r = r if r[2] >= 0 else -r
+    return np.degrees(np.arctan2(r[:2], r[2]))
+
+
+def sign_test_p(n_plus: int, n: int) -> float:
+    """Two-sided sign test: the chance of a split at least this uneven among n signs of a fair coin."""
+    from math import comb
+
+    k = max(n_plus, n - n_plus)
+    return min(1.0, 2.0 * sum(comb(n, i) for i in range(k, n + 1)) / 2.0**n)
+
+
+def gt_bias(records) -> dict[str, Any] | None:
+    """A ground truth biased over a run, not only noisy (raw KITTI's oxts: its translation direction sits ~1 deg
+    to one side of the images'): per pair with forward motion (F_gt's epipole within GT_SUSPECT_EPIPOLE_NEAR
+    diagonals of the image), the median offset (yaw, pitch; deg) of the tight fits' epipoles in image a from
+    F_gt's; over the run, per axis, a sign test. A bias: at least GT_BIAS_MIN_PAIRS pairs, p < GT_BIAS_P and
+    |median| >= GT_BIAS_MIN_DEG. -> {"axis", "median_deg", "median_px", "pairs", "same_side", "p", "text"} or None.
+    ``records``: results.jsonl records (``result`` with F, ``diagnostics``)."""
+    from fviz.geometry import epipoles
+
+    offsets, focal = [], []
+    for rec in records:
+        res, diag = rec.get("result"), rec.get("diagnostics") or {}
+        if rec.get("error") or not res or res.get("F_gt") is None or res["pair"].get("K_a") is None:
+            continue
+        if not _num(diag.get("gt_epipole_distance")) <= GT_SUSPECT_EPIPOLE_NEAR:
+            continue
+        K, F_gt = np.array(res["pair"]["K_a"]), np.array(res["F_gt"])
+        g = _direction_deg(K, epipoles(F_gt)[0])
+        fits = [e for e in res["estimators"] if _fits_matches(e["name"]) and e.get("F") is not None
+                and _num((diag.get("estimators") or {}).get(e["name"], {}).get("sed_median_inliers")) < GT_SUSPECT_FIT_PX]
+        if fits:
+            offsets.append(np.median([_direction_deg(K, epipoles(np.array(e["F"]))[0]) - g for e in fits], axis=0))
+            focal.append(K[0, 0])
+    if len(offsets) < GT_BIAS_MIN_PAIRS:
+        return None
+    offsets = np.array(offsets)
+    for axis, name in ((0, "x"), (1, "y")):
+        d = offsets[:, axis]
+        med, plus = float(np.median(d)), int((d > 0).sum())
+        p = sign_test_p(plus, len(d))
+        if p < GT_BIAS_P and abs(med) >= GT_BIAS_MIN_DEG:
+            px = float(np.tan(np.radians(abs(med))) * np.median(focal))
+            same = max(plus, len(d) - plus)
+            return {"axis": name, "median_deg": med, "median_px": px, "pairs": len(d), "same_side": same, "p": p,
+                    "text": (f"ground truth biased: the estimates' epipole sits {abs(med):.2f} deg ({px:.1f} px) "
+                             f"{('left', 'right', 'above', 'below')[2 * axis + (med > 0)]} "
+                             f"of the ground truth's on {same} of {len(d)} pairs (sign test p = {p:.2g}): translation "
+                             f"and pose errors below ~{abs(med):.1f} deg measure the ground truth, not the estimators")}
+    return None
