@@ -229,7 +229,8 @@ def print_outcome(outcome, what: str = "eval") -> None:
 
 
 def print_failures(out_dir: Path) -> None:
-    """The run's failures grouped by cause (summary.json's ``failures``), one line each, on stderr."""
+    """The run's failures grouped by cause (summary.json's ``failures``), one line each, and a ground truth biased
+    over the run (``gt_bias``), on stderr."""
     import json
 
     from fviz.failures import failure_lines
@@ -237,11 +238,13 @@ def print_failures(out_dir: Path) -> None:
 
     path = Path(out_dir) / SUMMARY_JSON
     try:
-        doc = json.loads(path.read_text()).get("failures")
+        summary = json.loads(path.read_text())
     except (OSError, ValueError):
         return
-    for line in failure_lines(doc):
+    for line in failure_lines(summary.get("failures")):
         print(line, file=sys.stderr)
+    if summary.get("gt_bias"):
+        print(f"note: {summary['gt_bias']['text']}", file=sys.stderr)
 
 
 def cpu_cores() -> int:

@@ -16,6 +16,7 @@ import numpy as np
 from fviz.atomic import WriteError, replacing, write_text
 from fviz.data.pair import PairId
 from fviz.errors import FvizError, Interrupted
+from fviz.diagnose import gt_bias, pair_epipole_offset
 from fviz.failures import Failures, failure_markdown
 from fviz.evaluate import GT_NAME, PairResult
 from fviz.run.config import _FLAGS, _flatten, _show  # noqa: E402  (a refused merge names the flags)
@@ -82,6 +83,12 @@ class _Stats:
         self.oracle_choice: dict[str, dict[str, int]] = {}  # sweep oracle -> {the grid entry it chose: pairs}
         self.failures = Failures()  # pair and estimator failures grouped by cause (fviz.failures)
         self.pair_gt: dict[str, list[str]] = {}  # per estimator, each pair's ground truth (pose, F, ..., none)
+        self.epipole_offsets: list = []  # per pair with forward motion, the tight fits' offset from F_gt (gt_bias)
+
+    @property
+    def gt_bias(self) -> dict[str, Any] | None:
+        """The ground truth's bias over the run (:func:`fviz.diagnose.gt_bias`), None when none is found."""
+        return gt_bias(self.epipole_offsets)
 
     @property
     def known(self) -> dict[str, bool]:
@@ -90,6 +97,8 @@ class _Stats:
     def add(self, rec: dict[str, Any], rows: list[dict[str, Any]]) -> None:
         self.pairs += 1
         self.failures.add(rec)
+        if (offset := pair_epipole_offset(rec)) is not None:
+            self.epipole_offsets.append(offset)
         self.ground_truth.update(row["ground_truth"] for row in rows[:1] if row.get("ground_truth"))
         self.pair_errors += rec["error"] is not None
         for key, v in ((rec.get("result") or {}).get("match_precision") or {}).items():
@@ -224,6 +233,7 @@ def summary_markdown(config: RunConfig, stats: _Stats) -> str:
         f"**{config.norm.upper()}**; distances in px. Statistics below are over the pairs where the estimator succeeded.",
         "",
         *failure_markdown(stats.failures.document()),
+        *([f"**{stats.gt_bias['text'][0].upper()}{stats.gt_bias['text'][1:]}.**", ""] if stats.gt_bias else []),
         "## Standard figures",
         "",
         *figures_markdown(standard_figures(stats.per_pair, ests, stats.known, stats.pair_gt)),
@@ -429,6 +439,7 @@ def summary_document(config: RunConfig, stats: _Stats) -> dict[str, Any]:
         "selection": config.selection.describe(), "pairs": stats.pairs, "pairs_failed": stats.pair_errors,
         "norm": config.norm, "eval_threshold_px": config.eval_threshold,
         "failures": stats.failures.document(),
+        "gt_bias": stats.gt_bias,
         "estimators": {e: {k: ({kk: clean(vv) for kk, vv in v.items()} if isinstance(v, dict) else clean(v))
                            for k, v in f.items()} for e, f in figures.items()},
         "seconds": {e: {k: clean(v) for k, v in t.items()} for e, t in time_table(stats, ests).items()},
