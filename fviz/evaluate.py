@@ -250,9 +250,12 @@ def score(
         if pose:
             metrics.update(rot_err_deg=0.0, trans_err_deg=0.0, pose_err_deg=0.0)
     else:
-        pose = recover_pose(F, pair.K_a, pair.K_b, xa, xb) if pair.has_K else None
+        cheirality = cheirality_points(pair, (xa, xb))
+        pose = recover_pose(F, pair.K_a, pair.K_b, *cheirality) if pair.has_K and cheirality else None
         if pair.has_pose:
             metrics.update(pose_metrics(*(pose or (None, None)), pair))
+            if not cheirality:
+                metrics["pose_undefined"] = 1.0
     if pair.has_gt:
         metrics["nsgd"] = 0.0 if name == GT_NAME else nsgd(F, pair.F_gt, pair.size_a, pair.size_b)
         metrics["gt_inlier_ratio"] = gt_inlier_ratio(pair.F_gt, m.x_a, m.x_b, inliers, pair.size_a, pair.size_b)
@@ -282,6 +285,19 @@ def rows_in_frame(result: PairResult, H_a: np.ndarray, H_b: np.ndarray,
                 row[f"epi_abs_{n}"], row[f"epi_sqr_{n}"] = epi_metrics(F, x_a, x_b, n)
         rows.append(row)
     return rows
+
+
+def cheirality_points(pair: Pair, evaluation: tuple[np.ndarray, np.ndarray]):
+    """The points that choose an F's decomposition into (R, t) by cheirality: the evaluation matches, or, with fewer
+    than MIN_POSE_POINTS of them, the ground truth's own correspondences where the source knows them (synthetic
+    scenes, ``--gt-matches``), never the estimate's matches; None when neither is enough: the pose is then
+    *undefined* (``pose_undefined`` = 1), not failed, and left out of the pose figures."""
+    from fviz.geometry.pose import MIN_POSE_POINTS
+
+    for x_a, x_b in (evaluation, (pair.points_a, pair.points_b), pair.gt_points or (None, None)):
+        if x_a is not None and len(x_a) >= MIN_POSE_POINTS:
+            return x_a, x_b
+    return None
 
 
 def evaluation_points(pair: Pair, m: Matches, eval_threshold_px: float) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray], str]:

@@ -137,16 +137,19 @@ def run_figures(run_dir: Path) -> dict[str, dict]:
 
     per_pair: dict[str, list[float]] = {}
     pair_gt: dict[str, list[str]] = {}
+    failures: dict[str, int] = {}
     ground_truth: set[str] = set()
     path = run_dir / "metrics.csv"
     with open(path, newline="") as f:
         for line, row in enumerate(_rows(f, path), 2):
             ground_truth.update([row["ground_truth"]] if row.get("ground_truth") else [])
             failed = bool(row.get("error") or row.get("pair_error"))
+            failures[row["estimator"]] = failures.get(row["estimator"], 0) + failed
             per_pair.setdefault(row["estimator"], []).extend(
                 math.nan if failed else csv_number(row, k, f"{path}:{line}") for k in FIGURE_KEYS)
-            pair_gt.setdefault(row["estimator"], []).append(row.get("ground_truth") or "pose")
-    return standard_figures(per_pair, known=figures_known(ground_truth), pair_gt=pair_gt)
+            undefined = not failed and row.get("pose_undefined") in ("1", "1.0")  # fviz.run.reports: left out of pose AUC
+            pair_gt.setdefault(row["estimator"], []).append("pose-undefined" if undefined else row.get("ground_truth") or "pose")
+    return standard_figures(per_pair, known=figures_known(ground_truth), pair_gt=pair_gt, failures=failures)
 
 
 def _rows(f, path: Path):

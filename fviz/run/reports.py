@@ -113,7 +113,8 @@ class _Stats:
                 self.failed[est] = self.failed.get(est, 0) + 1
             self.per_pair.setdefault(est, array("d")).extend(
                 math.nan if failed or row.get(k) is None else float(row[k]) for k in FIGURE_KEYS)
-            self.pair_gt.setdefault(est, []).append(row.get("ground_truth") or "pose")
+            undefined = not failed and row.get("pose_undefined") == 1.0  # too few evaluation matches: no (R, t)
+            self.pair_gt.setdefault(est, []).append("pose-undefined" if undefined else row.get("ground_truth") or "pose")
             for key in self.keys:
                 v = row.get(key)
                 if isinstance(v, float) and math.isfinite(v):
@@ -236,7 +237,7 @@ def summary_markdown(config: RunConfig, stats: _Stats) -> str:
         *([f"**{stats.gt_bias['text'][0].upper()}{stats.gt_bias['text'][1:]}.**", ""] if stats.gt_bias else []),
         "## Standard figures",
         "",
-        *figures_markdown(standard_figures(stats.per_pair, ests, stats.known, stats.pair_gt)),
+        *figures_markdown(standard_figures(stats.per_pair, ests, stats.known, stats.pair_gt, stats.failed)),
         "",
         "## Per estimator",
     ]
@@ -307,7 +308,7 @@ def sweep_curves(config: RunConfig, stats: _Stats) -> dict[str, dict[str, Any]]:
     from fviz.estimators.registry import display_names
     from fviz.estimators.sweep import ORACLE, split_threshold
 
-    figures = standard_figures(stats.per_pair, list(stats.order), pair_gt=stats.pair_gt)
+    figures = standard_figures(stats.per_pair, list(stats.order), pair_gt=stats.pair_gt, failures=stats.failed)
     out: dict[str, dict[str, Any]] = {}
     for spec, name in zip(config.options.names, display_names(config.options.names)):
         base, th = split_threshold(spec)
@@ -333,7 +334,7 @@ def sweep_markdown(config: RunConfig, stats: _Stats) -> list[str]:
              "the run*: the threshold of the highest AUC@10°; `-th-oracle`: per pair, the threshold whose F is closest "
              "to the ground truth. Both are chosen with the labels (oracles, as glue-factory's `ransac_th=-1`).", "",
              "| estimator | threshold px | AUC@10° | median SED px | |", "|---|---|---|---|---|"]
-    figures = standard_figures(stats.per_pair, list(stats.order), pair_gt=stats.pair_gt)
+    figures = standard_figures(stats.per_pair, list(stats.order), pair_gt=stats.pair_gt, failures=stats.failed)
     for base, entry in curves.items():
         for th, (name, f) in entry["curve"].items():
             lines.append(f"| {base} | {th} | {_fmt(f['pose_auc'].get('10', math.nan))} | {_fmt(f['sed_median'])} | "
@@ -364,7 +365,8 @@ BASELINE_NOTE = (
 
 def standard_figures(per_pair: dict[str, Iterable[float]], order: Iterable[str] | None = None,
                      known: dict[str, bool] | None = None,
-                     pair_gt: dict[str, list[str]] | None = None) -> dict[str, dict[str, Any]]:
+                     pair_gt: dict[str, list[str]] | None = None,
+                     failures: dict[str, int] | None = None) -> dict[str, dict[str, Any]]:
     """Per estimator, from its per-pair FIGURE_KEYS (flat, NaN = failed): pairs, failed, pose AUC@5/10/20 of
     pose_err_deg (LightGlue's pose_auc; failures infinite), nsgd_recall (share of pairs with nsgd <
     NSGD_RECALL_THRESHOLD; failures miss), medians of the per-pair sed_median and sampson_median over the
@@ -372,7 +374,8 @@ def standard_figures(per_pair: dict[str, Iterable[float]], order: Iterable[str] 
     ground truth allows that figure; NaN (n/a) where it does not (no pose, no ground truth). ``pair_gt``: per
     estimator, each pair's ground truth (pose, F, correspondences, none): pose AUC is then over the pairs with a
     pose and NSGD recall over those with any ground truth (``pose_pairs``, ``gt_pairs``), never counting a pair
-    without one as a miss."""
+    without one as a miss. ``failures``: per estimator, the pairs it gave no F on, when a NaN may also mean
+    *undefined* (no evaluation match for a median SED): those are not failures."""
     known = known or {"pose": True, "nsgd": True}
     from fviz.estimators.registry import is_oracle
     from fviz.geometry import AUC_THRESHOLDS_DEG, NSGD_RECALL_THRESHOLD, pose_auc
@@ -381,7 +384,7 @@ def standard_figures(per_pair: dict[str, Iterable[float]], order: Iterable[str] 
     for est in order or per_pair:
         v = np.asarray(per_pair.get(est, []), np.float64).reshape(-1, len(FIGURE_KEYS))
         pose, nsgd_, sed, samp = v.T
-        failed = int(np.isnan(sed).sum())
+        failed = int(np.isnan(sed).sum()) if failures is None else failures.get(est, 0)
         kinds = (pair_gt or {}).get(est)
         has_pose = np.ones(len(v), bool) if kinds is None or len(kinds) != len(v) else np.array([k == "pose" for k in kinds], bool)
         has_gt = np.ones(len(v), bool) if kinds is None or len(kinds) != len(v) else np.array([k != "none" for k in kinds], bool)
@@ -390,10 +393,11 @@ def standard_figures(per_pair: dict[str, Iterable[float]], order: Iterable[str] 
             recall = float(np.mean(np.nan_to_num(nsgd_, nan=np.inf) < NSGD_RECALL_THRESHOLD)) if len(nsgd_) else math.nan
         out[est] = {
             "pairs": len(v), "failed": failed, "pose_pairs": int(has_pose.sum()), "gt_pairs": int(has_gt.sum()),
+            "pose_undefined": 0 if kinds is None else sum(k == "pose-undefined" for k in kinds),
             "pose_auc": {f"{t:g}": a if known["pose"] else math.nan for t, a in zip(AUC_THRESHOLDS_DEG, pose_auc(pose))},
             "nsgd_recall": recall if known["nsgd"] else math.nan,
-            "sed_median": float(np.nanmedian(sed)) if failed < len(v) else math.nan,
-            "sampson_median": float(np.nanmedian(samp)) if failed < len(v) else math.nan,
+            "sed_median": float(np.nanmedian(sed)) if np.isfinite(sed).any() else math.nan,
+            "sampson_median": float(np.nanmedian(samp)) if np.isfinite(samp).any() else math.nan,
             "oracle": is_oracle(est),
         }
     return out
@@ -419,6 +423,10 @@ def figures_markdown(figures: dict[str, dict[str, Any]]) -> list[str]:
     if partial:
         lines += ["", "Only the pairs with ground truth count in the figures (a pose for AUC, any ground truth for NSGD "
                   "recall): " + "; ".join(partial[:1]) + (" (likewise the others)" if len(partial) > 1 else "") + "."]
+    undefined = [f"{_display(e)} {f['pose_undefined']}" for e, f in figures.items() if f.get("pose_undefined")]
+    if undefined:
+        lines += ["", "Pose undefined (too few evaluation matches to choose a decomposition of E by cheirality, and no "
+                  "ground-truth points): " + ", ".join(undefined) + " pairs, left out of pose AUC; not failures."]
     lines += [
         "",
         "Pose AUC: area under the recall curve of max(rotation error, translation-direction error) up to each threshold, "
@@ -433,7 +441,7 @@ def figures_markdown(figures: dict[str, dict[str, Any]]) -> list[str]:
 def summary_document(config: RunConfig, stats: _Stats) -> dict[str, Any]:
     """summary.json: the standard figures per estimator, machine-readable (NaN written as null)."""
     ests = list(stats.order) or config.series_names()
-    figures = standard_figures(stats.per_pair, ests, stats.known, stats.pair_gt)
+    figures = standard_figures(stats.per_pair, ests, stats.known, stats.pair_gt, stats.failed)
     clean = lambda v: v if not isinstance(v, float) or math.isfinite(v) else None  # noqa: E731
     return {
         "selection": config.selection.describe(), "pairs": stats.pairs, "pairs_failed": stats.pair_errors,
@@ -480,7 +488,7 @@ def run_markdown(config: RunConfig, stats: _Stats) -> str:
     """eval.rrd's summary tab: the run's standard figures (what summary.md opens with)."""
     ests = list(stats.order) or config.series_names()
     return "\n".join([f"**{config.selection.describe()}**: {stats.pairs} pairs ({stats.pair_errors} failed as a whole).",
-                      "", *figures_markdown(standard_figures(stats.per_pair, ests)), "",
+                      "", *figures_markdown(standard_figures(stats.per_pair, ests, failures=stats.failed)), "",
                       "Tabs: **metrics** and **motion** (one series per F over the `pair` timeline), **curves** (share "
                       "of the pairs below each threshold), and with `--full` the pairs' images. Every figure: summary.md."])
 
