@@ -1,0 +1,94 @@
+"""heldout.json's verdict fields: pose AUC@5/10/20 and the paired tests of the model against the straight-ahead
+constant and the training pairs' mean F, checked against independent computations (the closed form of the AUC,
+the straight-ahead pose error from the ground-truth motion, scipy's Wilcoxon test)."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fviz.data.kitti import open_dataset
+from fviz.train.heldout import PAIRED_METRICS, heldout_report
+from fviz.train.recipe import Recipe
+
+WEIGHTS = Path(__file__).resolve().parents[1] / "assets" / "fviz-deep.pt"
+
+
+def _auc(errors, th):
+    """SuperGlue's AUC by brute force: the recall curve through (0, 0) and (e_i, i / N), linear between its points
+    and flat past the last error below th, integrated on a fine grid up to th, over th (a failure: never recalled)."""
+    e = np.sort(np.asarray(errors, np.float64))
+    e = e[np.isfinite(e)]
+    xs = np.r_[0.0, e[e < th]]
+    ys = np.arange(len(xs)) / len(errors)
+    grid = np.linspace(0.0, th, 400001)
+    return float(np.trapezoid(np.interp(grid, xs, ys), grid) / th)
+
+
+def _angle(u, v):
+    c = abs(float(np.dot(u, v))) / (np.linalg.norm(u) * np.linalg.norm(v))
+    return math.degrees(math.acos(min(1.0, c)))
+
+
+@pytest.fixture(scope="module")
+def report(kitti_root, tmp_path_factory):
+    if not WEIGHTS.is_file():
+        pytest.skip("bundled weights absent")
+    recipe = Recipe.from_dict({
+        "model": {"variant": "siamese-rec-pos-fbn"},
+        "data": {"source": "kitti-odometry", "root": str(kitti_root), "sequences": ["02"], "val_sequences": ["10"],
+                 "cameras": [2], "frames": [0, 5]},
+        "train": {"out_dir": str(tmp_path_factory.mktemp("run"))},
+    })
+    return heldout_report(recipe, str(WEIGHTS))
+
+
+def test_report_names_what_the_drives_chose(report):
+    assert report["sequences"] == ["10"] and report["trained_on"] == ["02"]
+    assert report["chose"].startswith("nothing")  # no train.keep_best: the last step is the model
+    assert set(report["paired"]) == {"constant", "mean_f"}
+    for other in ("constant", "mean_f"):
+        assert set(report["paired"][other]) == set(PAIRED_METRICS)
+
+
+def test_pose_auc_is_the_closed_form_of_the_per_pair_errors(report):
+    for name in ("model", "constant", "mean_f"):
+        errors = [v["pose_err_deg"] for v in report["per_pair"][name].values()]
+        assert len(errors) == 4 == report[name]["pairs"]
+        for th in (5, 10, 20):
+            assert report[name]["pose_auc"][str(th)] == pytest.approx(_auc(errors, th), abs=1e-6)
+
+
+def test_straight_ahead_pose_error_is_the_ground_truth_motion(report, kitti_root):
+    """R = I, t = z: its pose error is max(the true rotation angle, the angle of the true t to the optical axis)."""
+    ds = open_dataset(kitti_root, sequence="10")
+    for f in range(4):
+        pid = ds.pair_id(f, kind="temporal", step=1, cams=(2, 2))
+        _, _, R, t, _ = ds.ground_truth(pid)
+        rot = math.degrees(math.acos(min(1.0, (np.trace(R) - 1) / 2)))
+        expected = max(rot, _angle(t, np.array([0.0, 0.0, 1.0])))
+        assert report["per_pair"]["constant"][pid.name]["pose_err_deg"] == pytest.approx(expected, abs=1e-3)
+
+
+def test_paired_tests_match_scipy(report):
+    from scipy.stats import wilcoxon
+
+    for other in ("constant", "mean_f"):
+        for metric in PAIRED_METRICS:
+            test = report["paired"][other][metric]
+            a, b = report["per_pair"]["model"], report["per_pair"][other]
+            d = np.array([a[n][metric] - b[n][metric] for n in a if n in b])
+            d = d[np.isfinite(d)]
+            assert test["pairs"] == len(a)
+            assert test["median_a_minus_b"] == pytest.approx(float(np.median(d)))
+            wins = sum(1 for n in a if a[n][metric] < b[n][metric] and
+                       abs(a[n][metric] - b[n][metric]) > 0.05 * max(abs(a[n][metric]), abs(b[n][metric])))
+            assert test["wins"] == wins
+            nz = d[d != 0]
+            if len(nz):
+                assert test["wilcoxon_p"] == pytest.approx(float(wilcoxon(nz, method="exact").pvalue), rel=1e-6)
+                if test["wilcoxon_p"] >= 0.05:
+                    assert test["verdict"] == "no difference shown"
