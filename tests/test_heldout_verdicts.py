@@ -92,3 +92,20 @@ def test_paired_tests_match_scipy(report):
                 assert test["wilcoxon_p"] == pytest.approx(float(wilcoxon(nz, method="exact").pvalue), rel=1e-6)
                 if test["wilcoxon_p"] >= 0.05:
                     assert test["verdict"] == "no difference shown"
+
+
+def test_the_explicit_names_are_the_bundled_models_as_deep_runs_them(odometry, monkeypatch):
+    """deep:motion on a temporal pair and deep:stereo on a stereo pair give deep's F (views and gain included)."""
+    from fviz.estimators.deep import STEREO, WEIGHTS_ENV, deep_estimator
+    from fviz.estimators.registry import get_estimator
+
+    if not (WEIGHTS.is_file() and STEREO.is_file()):
+        pytest.skip("bundled weights absent")
+    monkeypatch.delenv(WEIGHTS_ENV, raising=False)
+    temporal = odometry.load(odometry.pair_id(0, kind="temporal", step=1, cams=(0, 0)))
+    stereo = odometry.load(odometry.pair_id(0, kind="stereo"))
+    deep = deep_estimator()
+    np.testing.assert_allclose(get_estimator("deep:motion")(temporal, None, None), deep(temporal, None, None), atol=1e-12)
+    np.testing.assert_allclose(get_estimator("deep:stereo")(stereo, None, None), deep(stereo, None, None), atol=1e-12)
+    one_pass = deep_estimator(str(WEIGHTS))(temporal, None, None)  # deep:PATH: one pass, no views
+    assert not np.allclose(one_pass / np.linalg.norm(one_pass), deep(temporal, None, None) / np.linalg.norm(deep(temporal, None, None)))
