@@ -109,3 +109,23 @@ def test_the_explicit_names_are_the_bundled_models_as_deep_runs_them(odometry, m
     np.testing.assert_allclose(get_estimator("deep:stereo")(stereo, None, None), deep(stereo, None, None), atol=1e-12)
     one_pass = deep_estimator(str(WEIGHTS))(temporal, None, None)  # deep:PATH: one pass, no views
     assert not np.allclose(one_pass / np.linalg.norm(one_pass), deep(temporal, None, None) / np.linalg.norm(deep(temporal, None, None)))
+
+
+def test_the_manifest_verdicts_carry_pose_auc_and_the_paired_tests_against_both_constants():
+    import json
+
+    manifest = json.loads((WEIGHTS.parent / "MANIFEST.json").read_text())
+    for verdict in (manifest["verdict"], manifest["stereo_model"]["verdict"]):
+        clean_wins = []
+        for drive, entry in verdict["heldout"].items():
+            assert entry["data"] and entry["chose"] and entry["mean_f"], drive  # every claim names its drive and what it chose
+            auc = {name: entry["figures"][name]["pose_auc_5_10_20"] for name in ("deep", "ahead", "mean_f", "magsac")}
+            assert all(len(a) == 3 and all(0.0 <= x <= 1.0 for x in a) for a in auc.values())
+            beats = all(auc["deep"][i] > auc[c][i] for c in ("ahead", "mean_f") for i in range(3))
+            assert entry["deep_beats_both_constants_on_pose_auc"] == beats, drive
+            for side in ("vs_ahead", "vs_mean_f"):
+                assert set(entry["paired_compare"][side]) == {"pose_err_deg", "sed_median", "rot_err_deg"}
+            if entry["chose"].startswith("nothing"):
+                clean_wins.append(beats)
+        assert clean_wins, "no held-out drive that chose nothing"
+        assert verdict["result"].startswith("not met") == (not all(clean_wins))
