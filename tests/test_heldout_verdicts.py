@@ -129,3 +129,21 @@ def test_the_manifest_verdicts_carry_pose_auc_and_the_paired_tests_against_both_
                 clean_wins.append(beats)
         assert clean_wins, "no held-out drive that chose nothing"
         assert verdict["result"].startswith("not met") == (not all(clean_wins))
+
+
+def test_the_mean_f_constant_is_per_pair_kind(kitti_root, tmp_path):
+    """A recipe with temporal and stereo pairs gets one mean F per kind: the stereo one is the rectified rig's F."""
+    from fviz.train.heldout import training_mean_f
+
+    recipe = Recipe.from_dict({
+        "model": {"variant": "siamese-rec-pos-fbn"},
+        "data": {"source": "kitti-odometry", "root": str(kitti_root), "sequences": ["01"], "val_sequences": ["10"],
+                 "kinds": ["temporal", "stereo"], "cameras": [0, 1], "frames": [0, 4]},
+        "train": {"out_dir": str(tmp_path / "run")},
+    })
+    means = training_mean_f(recipe)
+    assert set(means) == {"temporal", "stereo"}
+    F = means["stereo"] / np.linalg.norm(means["stereo"])
+    rectified = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]]) / math.sqrt(2)
+    assert min(np.abs(F - rectified).max(), np.abs(F + rectified).max()) < 1e-9
+    assert np.abs(means["temporal"] / np.linalg.norm(means["temporal"]) - F).max() > 0.1

@@ -201,31 +201,39 @@ def heldout_pairs(recipe, directions: bool = False):
             yield load_kitti_pair(ds, item)
 
 
-def training_mean_f(recipe) -> np.ndarray | None:
-    """The mean ground-truth F (:func:`fviz.estimators.baselines.mean_fundamental`) of the recipe's training
-    pairs, forward direction, from calibration and poses alone (no image read); None when it has none."""
+def training_mean_f(recipe) -> dict[str, np.ndarray]:
+    """{pair kind: the mean ground-truth F (:func:`fviz.estimators.baselines.mean_fundamental`) of the recipe's
+    training pairs of that kind}, forward direction, from calibration and poses alone (no image read); a kind
+    without a pair with F is left out."""
     from fviz.estimators.baselines import mean_fundamental
     from fviz.errors import FvizError
     from fviz.train.data import _open_named, kitti_items, kitti_pair_id, resolve_root
 
     d = recipe.data
     roots = [str(resolve_root(r)) for r in [d.root, *d.roots] if r]
+    truths: dict[str, list[np.ndarray]] = {}
+    for name in [*d.sequences, *d.drives]:
+        _, ds = _open_named(roots, name)
+        for item in kitti_items(recipe, name):
+            if item.reverse:
+                continue
+            try:
+                truths.setdefault(item.kind, []).append(ds.ground_truth(kitti_pair_id(ds, item))[4])
+            except FvizError:  # a pair without motion has no F
+                continue
+    return {kind: mean_fundamental(Fs) for kind, Fs in truths.items() if Fs}
 
-    def truths():
-        for name in [*d.sequences, *d.drives]:
-            _, ds = _open_named(roots, name)
-            for item in kitti_items(recipe, name):
-                if item.reverse:
-                    continue
-                try:
-                    yield ds.ground_truth(kitti_pair_id(ds, item))[4]
-                except FvizError:  # a pair without motion has no F
-                    continue
 
-    try:
-        return mean_fundamental(truths())
-    except FvizError:
-        return None
+def mean_f_estimator(means: dict[str, np.ndarray]):
+    """The constant of the pair's kind (:func:`training_mean_f`); NaN F (a failure) for a kind it has none of."""
+
+    def constant(pair, x_a=None, x_b=None):
+        F = means.get(pair.id.kind)
+        if F is None:
+            raise ValueError(f"no training pair of kind {pair.id.kind}: no mean F")
+        return F.copy()
+
+    return constant
 
 
 def heldout_report(recipe, weights) -> dict[str, Any]:
@@ -239,14 +247,13 @@ def heldout_report(recipe, weights) -> dict[str, Any]:
     checkpoint. {} when the recipe names no held-out KITTI sequence."""
     if recipe.data.source == "synthetic" or not recipe.data.val_sequences:
         return {}
-    from fviz.estimators.baselines import constant_estimator
     from fviz.estimators.deep import deep_estimator
 
     pairs = list(heldout_pairs(recipe))
     estimators = [("model", deep_estimator(weights)), ("constant", straight_ahead_f)]
-    F_mean = training_mean_f(recipe)
-    if F_mean is not None:
-        estimators.append(("mean_f", constant_estimator(F_mean)))
+    means = training_mean_f(recipe)
+    if means:
+        estimators.append(("mean_f", mean_f_estimator(means)))
     rows = heldout_rows(pairs, estimators)
     keep_best = recipe.train.keep_best
     report: dict[str, Any] = {
