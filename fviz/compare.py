@@ -125,7 +125,13 @@ def compare(a: Side, b: Side, metric: str = "sed_median", fail_threshold: float 
     """Pair-by-pair comparison of side a against side b."""
     if a.estimator == b.estimator and Path(a.run).resolve() == Path(b.run).resolve():
         raise FvizError(f"compare: a and b are both {a.estimator} of {a.run}; compare two estimators or two runs")
-    va, vb = read_side(a, metric), read_side(b, metric)
+    return compare_values(a, b, metric, read_side(a, metric), read_side(b, metric), fail_threshold, tie, tie_rel)
+
+
+def compare_values(a: Side, b: Side, metric: str, va: dict[str, tuple[float, str]], vb: dict[str, tuple[float, str]],
+                   fail_threshold: float | None = FAIL_THRESHOLD, tie: float = 0.0, tie_rel: float = TIE_REL) -> Comparison:
+    """:func:`compare` of values already read: pair name -> (value or NaN, error message or "") of each side
+    (what :func:`read_side` gives; :mod:`fviz.train.heldout` passes its own per-pair figures)."""
     hb = metric in HIGHER_IS_BETTER
     c = Comparison(a, b, metric, fail_threshold, tie=tie, tie_rel=tie_rel)
     c.missing = sorted(set(va) ^ set(vb))

@@ -92,11 +92,18 @@ def train(
         import json
 
         figures = json.loads(report.read_text())
-        for name in ("model", "constant"):
+        for name in [n for n in ("model", "constant", "mean_f") if n in figures]:
             f = figures[name]
-            console.print(f"held-out {', '.join(figures['sequences'])}, {name:8s}: temporal median SED {f['temporal_sed_median']:.3g} px, "
+            auc = "/".join(f"{v:.3g}" for v in f.get("pose_auc", {}).values())
+            console.print(f"held-out {', '.join(figures['sequences'])}, {name:8s}: pose AUC@5/10/20 {auc}, "
+                          f"temporal median SED {f['temporal_sed_median']:.3g} px, "
                           f"rotation error {f['temporal_rot_err_median']:.3g} deg, yaw correlation {f['temporal_yaw_corr']:.3g}, "
                           f"stereo epipole error {f['stereo_epipole_err_median']:.3g} deg", highlight=False)
+        for other, tests in figures.get("paired", {}).items():
+            t = tests.get("pose_err_deg", {})
+            console.print(f"held-out    model vs {other}, pose error: {t.get('wins')} wins, {t.get('losses')} losses, "
+                          f"{t.get('ties')} ties, Wilcoxon p {t.get('wilcoxon_p', float('nan')):.3g}: {t.get('verdict')}",
+                          highlight=False)
         console.print(f"held-out    {report}")
 
 

@@ -10,6 +10,11 @@
   while a motion network must follow the car; trained on both kinds at once, one network traded its
   temporal accuracy for a stereo F it did not reach (docs/training.md, docs/changelog.md).
   ``$FVIZ_WEIGHTS`` names one file for every pair instead;
+- ``deep:motion`` and ``deep:stereo``: each bundled model by its explicit name, on every pair (``deep:motion``
+  with the views and the yaw gain ``deep`` gives it). Neither beats the constants that read no image on the
+  standard figure, pose AUC, on held-out drives that chose nothing (odometry 02 and 09 for motion, where the
+  straight-ahead ``ahead`` is as good or better; 00, 01, 05 for stereo, where the mean stereo F ``mean:SEQ`` is
+  exact): ``deep`` is the networks, not the better estimator (assets/MANIFEST.json ``verdict``, docs/training.md);
 - ``deep:synthetic``: the model trained on synthetic scenes only (``assets/fviz-deep-synthetic.pt``
   once KITTI-trained weights take ``fviz-deep.pt``; until then the bundled model is that one);
 - ``deep:PATH``: any checkpoint or exported weights file.
@@ -41,11 +46,19 @@ def bundled_weights() -> Path:
     return path
 
 
+NAMED = ("synthetic", "motion", "stereo")
+
+
 def named_weights(name: str) -> Path | None:
-    """The bundled file of a model name (``synthetic``), or None when ``name`` is not one."""
-    if name == "synthetic" and not Path(name).is_file():
+    """The bundled file of a model name (``synthetic``, ``motion``, ``stereo``), or None when ``name`` is not one."""
+    if name not in NAMED or Path(name).is_file():
+        return None
+    if name == "synthetic":
         return SYNTHETIC if SYNTHETIC.is_file() else bundled_weights()
-    return None
+    path = BUNDLED if name == "motion" else STEREO
+    if not path.is_file():
+        raise FvizError(f"--estimator deep:{name}: bundled weights not found at {path} (install from a checkout with pip install -e .)")
+    return path
 
 
 def bundled_yaw_gain() -> float:
@@ -64,6 +77,8 @@ def _models(path: str | Path | None, device: str) -> tuple[dict[str, object], di
     {kind: yaw gain} of the kinds whose pairs are also predicted mirrored and reversed: the bundled motion model's)."""
     from fviz.models.weights import load_model
 
+    if path == "motion" and named_weights("motion"):  # the bundled motion model as deep runs it: views and yaw gain
+        return {"": load_model(BUNDLED, device)[0]}, {"": bundled_yaw_gain()}
     if path:
         path = named_weights(str(path)) or Path(path)
     elif WEIGHTS_ENV not in os.environ and STEREO.is_file():

@@ -3,7 +3,9 @@
 - a built-in name: ``7point``, ``8point``, ``lmeds``, ``ransac``, ``magsac``, OpenCV's USAC presets
   ``usac-default``, ``usac-accurate``, ``usac-prosac``, ``usac-fm8pts``, ``usac-parallel``
   (:mod:`fviz.estimators.classical`), ``poselib``, ``poselib-E``, ``colmap`` (:mod:`fviz.estimators.external`),
-  ``deep`` (the bundled model), ``ahead`` (the straight-ahead baseline, from the cameras alone);
+  ``deep`` (the bundled networks, by pair kind; ``deep:motion`` / ``deep:stereo`` name each: neither beats the
+  constants ``ahead`` and ``mean:SEL`` on pose AUC on held-out drives that chose nothing, see
+  ``assets/MANIFEST.json`` ``verdict``), ``ahead`` (the straight-ahead baseline, from the cameras alone);
 - ``NAME@T``: a robust estimator at threshold T px, ``NAME@oracle``: the best of a grid per pair, chosen with
   the ground truth (:mod:`fviz.estimators.sweep`; ``--threshold sweep`` writes them);
 - ``deep:PATH``: a checkpoint trained by ``fviz train``;

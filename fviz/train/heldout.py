@@ -13,8 +13,14 @@ ground truth, FBN EPI-ABS / EPI-SQR, median SED, epipole error); on top, for pos
 Summary figures (:func:`summarize`) are medians over pairs, split by pair kind:
 ``temporal_sed_median``, ``temporal_rot_err_median``, ``temporal_yaw_corr``, ``temporal_yaw_slope`` (least
 squares, predicted on true yaw: 1 follows the car, 0 ignores it), ``straight_sed_median``,
-``stereo_epipole_err_median``, ``stereo_sed_median``, and the paper's Table 1 means ``epi_abs`` /
-``epi_sqr`` (FBN) over all pairs.
+``stereo_epipole_err_median``, ``stereo_sed_median``, the paper's Table 1 means ``epi_abs`` /
+``epi_sqr`` (FBN) over all pairs, and the standard figure ``fviz eval`` prints first, ``pose_auc`` (AUC@5/10/20 of
+the eval's ``pose_err_deg`` over all pairs, :func:`fviz.geometry.pose_auc`: a pair without a pose counts as a miss).
+
+:func:`heldout_report` (``heldout.json`` of ``fviz train``) sets the model beside two constants that read no
+image, the straight-ahead F (``constant``) and the mean ground-truth F of the recipe's training pairs (``mean_f``),
+and gives the paired test of the model against each (:func:`paired_test`: ``fviz compare``'s wins, losses,
+ties and Wilcoxon signed-rank test) on ``pose_err_deg``, ``sed_median`` and ``rot_err_deg``.
 """
 
 from __future__ import annotations
@@ -85,6 +91,8 @@ def _median(values: list[float]) -> float:
 
 def summarize(rows: list[PairFigures]) -> dict[str, Any]:
     """Summary figures of one estimator over its pairs (see the module docstring)."""
+    from fviz.geometry import AUC_THRESHOLDS_DEG, pose_auc
+
     temporal = [r for r in rows if r.kind == "temporal"]
     stereo = [r for r in rows if r.kind == "stereo"]
     straight = [r for r in temporal if abs(r.gt_yaw) < STRAIGHT_YAW_DEG]
@@ -108,11 +116,44 @@ def summarize(rows: list[PairFigures]) -> dict[str, Any]:
         "stereo_sed_median": _median([r.metrics.get("sed_median") for r in stereo]),
         "epi_abs": float(np.nanmean(epi)) if np.isfinite(epi).any() else math.nan,
         "epi_sqr": float(np.nanmean(epi_sq)) if np.isfinite(epi_sq).any() else math.nan,
+        "pose_auc": {f"{t:g}": a for t, a in zip(AUC_THRESHOLDS_DEG,
+                                                 pose_auc([r.metrics.get("pose_err_deg", math.nan) for r in rows]))},
     }
+
+
+PAIRED_METRICS = ("pose_err_deg", "sed_median", "rot_err_deg")
+
+
+def paired_test(a: list[PairFigures], b: list[PairFigures], metric: str, names: tuple[str, str] = ("a", "b")) -> dict[str, Any]:
+    """``fviz compare`` of two estimators' per-pair figures on ``metric`` (:func:`fviz.compare.compare_values`):
+    pairs compared, wins (a better), losses, ties (within 5 %), failures, the median of a - b and Wilcoxon's
+    signed-rank p (two-sided), and ``verdict``: "a better" / "b better" where p < 0.05, else "no difference shown"."""
+    from pathlib import Path
+
+    from fviz.compare import Side, _median_diff, compare_values
+    from fviz.verdicts import HIGHER_IS_BETTER
+
+    def side(rows):
+        return {r.name: (float(r.metrics.get(metric, math.nan)), "") for r in rows}
+
+    c = compare_values(Side(Path("heldout"), names[0]), Side(Path("heldout"), names[1]), metric, side(a), side(b))
+    w = c.wilcoxon()
+    median = _median_diff(c)
+    a_ahead = (median > 0) if metric in HIGHER_IS_BETTER else (median < 0)
+    better = (names[0] if a_ahead else names[1]) if w.n and w.p < 0.05 else ""
+    return {"metric": metric, "pairs": len(c.values), "wins": len(c.wins), "losses": len(c.losses), "ties": len(c.ties),
+            "a_failed": len(c.a_failed), "b_failed": len(c.b_failed), "median_a_minus_b": median,
+            "wilcoxon_p": w.p, "wilcoxon_method": w.method, "wilcoxon_n": w.n,
+            "verdict": f"{better} better" if better else "no difference shown"}
 
 
 def evaluate_heldout(pairs, estimators: list[tuple[str, Callable]], on_pair=None) -> dict[str, dict[str, Any]]:
     """{estimator (and "gt"): summary} over ``pairs`` (an iterable of :class:`fviz.data.pair.Pair`)."""
+    return {name: summarize(r) for name, r in heldout_rows(pairs, estimators, on_pair).items()}
+
+
+def heldout_rows(pairs, estimators: list[tuple[str, Callable]], on_pair=None) -> dict[str, list[PairFigures]]:
+    """{estimator (and "gt"): its per-pair figures} over ``pairs``."""
     from fviz.estimators.features import FeatureCache, FeatureConfig
 
     cache = FeatureCache(FeatureConfig())
@@ -122,7 +163,7 @@ def evaluate_heldout(pairs, estimators: list[tuple[str, Callable]], on_pair=None
             rows.setdefault(name, []).append(fig)
         if on_pair is not None:
             on_pair(n + 1)
-    return {name: summarize(r) for name, r in rows.items()}
+    return rows
 
 
 def fit_yaw_gain(model, pairs, gains=tuple(np.round(np.arange(1.0, 2.001, 0.05), 2))) -> tuple[float, dict[float, float]]:
@@ -160,14 +201,71 @@ def heldout_pairs(recipe, directions: bool = False):
             yield load_kitti_pair(ds, item)
 
 
+def training_mean_f(recipe) -> dict[str, np.ndarray]:
+    """{pair kind: the mean ground-truth F (:func:`fviz.estimators.baselines.mean_fundamental`) of the recipe's
+    training pairs of that kind}, forward direction, from calibration and poses alone (no image read); a kind
+    without a pair with F is left out."""
+    from fviz.estimators.baselines import mean_fundamental
+    from fviz.errors import FvizError
+    from fviz.train.data import _open_named, kitti_items, kitti_pair_id, resolve_root
+
+    d = recipe.data
+    roots = [str(resolve_root(r)) for r in [d.root, *d.roots] if r]
+    truths: dict[str, list[np.ndarray]] = {}
+    for name in [*d.sequences, *d.drives]:
+        _, ds = _open_named(roots, name)
+        for item in kitti_items(recipe, name):
+            if item.reverse:
+                continue
+            try:
+                truths.setdefault(item.kind, []).append(ds.ground_truth(kitti_pair_id(ds, item))[4])
+            except FvizError:  # a pair without motion has no F
+                continue
+    return {kind: mean_fundamental(Fs) for kind, Fs in truths.items() if Fs}
+
+
+def mean_f_estimator(means: dict[str, np.ndarray]):
+    """The constant of the pair's kind (:func:`training_mean_f`); NaN F (a failure) for a kind it has none of."""
+
+    def constant(pair, x_a=None, x_b=None):
+        F = means.get(pair.id.kind)
+        if F is None:
+            raise ValueError(f"no training pair of kind {pair.id.kind}: no mean F")
+        return F.copy()
+
+    return constant
+
+
 def heldout_report(recipe, weights) -> dict[str, Any]:
-    """The held-out figures of a trained model file, beside the straight-ahead constant, over the recipe's
-    ``data.val_sequences`` (forward pairs of every selected kind and step): what ``-e deep:PATH`` gives
-    a user on sequences the model never saw.  {} when the recipe names no held-out KITTI sequence."""
+    """The held-out figures of a trained model file over the recipe's ``data.val_sequences`` (forward pairs
+    of every selected kind and step): what ``-e deep:PATH`` gives a user on sequences the model never trained
+    on, beside two constants that read no image, the straight-ahead F (``constant``) and the mean ground-truth
+    F of the training pairs (``mean_f``), with the paired test of the model against each on pose error, SED
+    and rotation error (``paired``: {constant name: {metric: :func:`paired_test`}}; ``per_pair``: the figures
+    tested, {estimator: {pair: {metric: value}}}). ``chose`` says what the
+    held-out sequences selected: they are the validation set, so with ``train.keep_best`` they chose the
+    checkpoint. {} when the recipe names no held-out KITTI sequence."""
     if recipe.data.source == "synthetic" or not recipe.data.val_sequences:
         return {}
     from fviz.estimators.deep import deep_estimator
 
     pairs = list(heldout_pairs(recipe))
-    summary = evaluate_heldout(pairs, [("model", deep_estimator(weights)), ("constant", straight_ahead_f)])
-    return {"sequences": list(recipe.data.val_sequences), "model": summary["model"], "constant": summary["constant"]}
+    estimators = [("model", deep_estimator(weights)), ("constant", straight_ahead_f)]
+    means = training_mean_f(recipe)
+    if means:
+        estimators.append(("mean_f", mean_f_estimator(means)))
+    rows = heldout_rows(pairs, estimators)
+    keep_best = recipe.train.keep_best
+    report: dict[str, Any] = {
+        "sequences": list(recipe.data.val_sequences),
+        "trained_on": [*recipe.data.sequences, *recipe.data.drives],
+        "chose": (f"the checkpoint (validation set; train.keep_best = {keep_best!r})" if keep_best
+                  else "nothing selected by the training run (validation curves only; model.pt is the last step)"),
+        **{name: summarize(rows[name]) for name, _ in estimators},
+        "paired": {},
+    }
+    report["per_pair"] = {name: {r.name: {m: r.metrics.get(m, math.nan) for m in PAIRED_METRICS} for r in rows[name]}
+                          for name, _ in estimators}
+    for other in [name for name, _ in estimators[1:]]:
+        report["paired"][other] = {m: paired_test(rows["model"], rows[other], m, ("model", other)) for m in PAIRED_METRICS}
+    return report
