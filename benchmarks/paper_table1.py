@@ -6,9 +6,10 @@
 Splits (recipes/paper/): ``honest`` trains on the City drives 0001, 0002, 0005 and tests on drive 0013,
 never seen; ``paper`` draws random frames of all four drives, 80 / 10 / 10 % (the paper's 1600 / 200 / 200),
 so test frames neighbour training frames.  Rows: the Siamese Base, REC, REC + POS, EPI, EPI + POS under FBN
-and ABS, the Single-stream REC + POS, 8-point, LMedS, RANSAC, MAGSAC++, the two constants that read no
-image (``ahead``: straight ahead; the mean ground-truth F of the training pairs, a fair prior since it saw
-no test label) and the ground truth.
+and ABS, the Single-stream REC + POS, 8-point, LMedS, RANSAC, MAGSAC++, PoseLib (all on SIFT matches), the
+learned matches (XFeat, XFeat + LighterGlue, DISK + LightGlue; ``--learned``, where the learned extra is
+installed) with MAGSAC++ and PoseLib, the two constants that read no image (``ahead``: straight ahead; the
+mean ground-truth F of the training pairs, a fair prior since it saw no test label) and the ground truth.
 
 Each row shows the paper's figures (``fviz.table.PAPER_TABLE1``), fviz's in the paper's frame (the unrectified
 cameras of ``calib_cam_to_cam.txt``, every F and match mapped there: ETR is defined) and in the rectified frame
@@ -42,7 +43,10 @@ RECIPES = {"honest": PROJECT / "recipes" / "paper" / "city_stereo.toml",
 TEST_DRIVES = {"honest": ["2011_09_26_drive_0013"], "paper": None}  # None: the test part of the training drives
 VARIANTS = [f"siamese-{h}-{n}" for h in ("base", "rec", "rec-pos", "epi", "epi-pos") for n in ("fbn", "abs")]
 VARIANTS += ["single-rec-pos-fbn"]
-CLASSICAL = ["8point", "lmeds", "ransac", "magsac", "ahead"]
+CLASSICAL = ["8point", "lmeds", "ransac", "magsac", "poselib", "ahead"]
+# today's correspondence pipeline: learned matches (the learned extra, docs/matchers.md) + MAGSAC++ / PoseLib
+LEARNED = ["xfeat", "xfeat+lighterglue", "disk+lightglue"]
+LEARNED_ESTIMATORS = {"magsac": "MAGSAC++", "poselib": "PoseLib"}
 
 
 def train_missing(split: str, variants: list[str], out: Path, steps: int, overrides: list[str]) -> dict[str, Path]:
@@ -128,7 +132,7 @@ FRAMES_NOTE = (
     "evaluation matches are chosen again there (SED < 2 px under the mapped ground truth). *rectified*: the images "
     "as fviz reads them (1242 x 375); F33 = 0, so ETR is undefined. **÷ GT**: a row's value over the ground-truth "
     "row of its column, the one figure that survives a change of frame. Means over pairs of the per-pair means.")
-NO_COUNTERPART = ("—: no counterpart. MAGSAC++ postdates the paper; the constants (straight ahead, the training "
+NO_COUNTERPART = ("—: no counterpart. MAGSAC++, PoseLib and the learned matchers postdate the paper; the constants (straight ahead, the training "
                   "drives' mean F) are fviz's controls, not the paper's; a paper network row fviz did not train "
                   "here shows only the paper's figures.")
 
@@ -173,7 +177,31 @@ def table1_markdown(rectified: dict[str, list[str]], paper_frame: dict[str, list
     return md
 
 
-def evaluate(split: str, models: dict[str, Path], out: Path, overrides: list[str], test_drives: list[str] | None) -> Path:
+def learned_estimators(kinds: list[str]) -> dict[str, tuple]:
+    """{kind: (FeatureCache, [(row name, estimator)])} of the learned matchers usable here (the extra installed,
+    LightGlue's weights found); the others are named and left out."""
+    from fviz.errors import FvizError
+    from fviz.estimators.features import FeatureCache, FeatureConfig
+    from fviz.estimators.registry import get_estimator
+
+    usable = {}
+    for kind in kinds:
+        try:
+            cfg = FeatureConfig(kind)
+            if kind == "disk+lightglue":
+                from fviz.estimators.learned import _lightglue_file
+
+                _lightglue_file("disk_lightglue.pth")
+        except FvizError as e:
+            print(f"  left out: {e}", flush=True)
+            continue
+        usable[kind] = (FeatureCache(cfg, threads=1),
+                        [(f"{kind} + {label}", get_estimator(name)) for name, label in LEARNED_ESTIMATORS.items()])
+    return usable
+
+
+def evaluate(split: str, models: dict[str, Path], out: Path, overrides: list[str], test_drives: list[str] | None,
+             learned: list[str] = ()) -> Path:
     from fviz.estimators.baselines import constant_estimator
     from fviz.estimators.deep import deep_estimator
     from fviz.estimators.features import FeatureCache, FeatureConfig
@@ -188,12 +216,20 @@ def evaluate(split: str, models: dict[str, Path], out: Path, overrides: list[str
     estimators += [(name, get_estimator(name)) for name in CLASSICAL]
     estimators.append(("mean-training drives", constant_estimator(training_mean_f(split, recipe))))
     cache = FeatureCache(FeatureConfig(), threads=1)
+    learned_rows = learned_estimators(list(learned))
     rows, frame_rows, results, t0 = [], [], [], time.perf_counter()
     for pair, (H_a, H_b) in test_pairs(split, recipe, test_drives):
         result = evaluate_pair(pair, estimators, cache=cache)
         rows += result.rows()
         frame_rows += rows_in_frame(result, H_a, H_b)
         results.append((result, pair))
+        for kind, (kcache, kests) in learned_rows.items():  # the same pair, the learned matches
+            r = evaluate_pair(pair, kests, features=kcache.cfg, cache=kcache)
+            r.estimators = [e for e in r.estimators if e.name != "gt"]
+            rows += [x for x in r.rows() if x["estimator"] != "gt"]
+            frame_rows += [x for x in rows_in_frame(r, H_a, H_b) if x["estimator"] != "gt"]
+            results.append((r, pair))
+    estimators += [e for _, kests in learned_rows.values() for e in kests]
     n_pairs = len({r['name'] for r in rows})
     print(f"  {split}: {n_pairs} test pairs, {len(estimators)} estimators, {time.perf_counter() - t0:.0f} s", flush=True)
     variants = {v: parse_variant(v) for v in models}
@@ -230,6 +266,8 @@ def main() -> int:
     ap.add_argument("--out", default=str(PROJECT / "runs" / "paper"))
     ap.add_argument("--set", action="append", default=[], help="recipe override for every variant (KEY=VALUE)")
     ap.add_argument("--test-drive", action="append", default=[], help="honest split: the test drives (default: 0013)")
+    ap.add_argument("--learned", default=",".join(LEARNED),
+                    help="learned matchers whose matches get MAGSAC++ / PoseLib rows (the learned extra; '' for none)")
     args = ap.parse_args()
 
     import torch
@@ -240,7 +278,7 @@ def main() -> int:
         print(f"{split} split: training {args.variants}", flush=True)
         models = train_missing(split, [v for v in args.variants.split(",") if v], out, args.steps, args.set)
         drives = (args.test_drive or TEST_DRIVES[split]) if split == "honest" else None
-        path = evaluate(split, models, out, args.set, drives)
+        path = evaluate(split, models, out, args.set, drives, [k for k in args.learned.split(",") if k])
         print(path.read_text())
     return 0
 

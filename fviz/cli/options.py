@@ -75,7 +75,7 @@ PairKind = Annotated[str, typer.Option("--pair", help="stereo (two cameras, one 
 Step = Annotated[int, typer.Option("--step", help="Frame step of temporal pairs.")]
 Cams = Annotated[Optional[str], typer.Option("--cams", help="Cameras a,b (default 0,1 for stereo, 0,0 for temporal; 2,3 and 2,2 where only the colour images exist). A gray/colour pair (0,2) is evaluated in gray, with a note.")]
 Estimators = Annotated[Optional[list[str]], typer.Option("--estimator", "-e", help="Repeatable: 7point, 8point, lmeds, ransac, magsac, usac-default, usac-accurate, usac-prosac, usac-fm8pts, usac-parallel, poselib, poselib-E, colmap, deep (the bundled networks: not better than ahead or mean:SEQ on held-out pose AUC, see docs/training.md), deep:motion, deep:stereo, deep:PATH, module:function, ahead; in eval/triage also mean:SEQ,... and oracle-mean.")]
-Features = Annotated[str, typer.Option("--features", help="sift, orb or akaze.")]
+Features = Annotated[str, typer.Option("--features", help="sift, orb or akaze; with the learned extra (pip install 'fviz[learned]'): xfeat, xfeat+lighterglue, disk+lightglue.")]
 
 
 def _keypoints(value: int) -> int:

@@ -9,7 +9,9 @@ import numpy as np
 
 from fviz.errors import FvizError
 
-FEATURES = ("sift", "orb", "akaze")
+from fviz.estimators.learned import LEARNED, is_learned
+
+FEATURES = ("sift", "orb", "akaze") + LEARNED  # the learned ones need the learned extra (fviz.estimators.learned)
 
 
 @dataclass(frozen=True)
@@ -22,6 +24,10 @@ class FeatureConfig:
     def __post_init__(self):
         if self.kind not in FEATURES:
             raise FvizError(f"--features {self.kind!r}: choose one of {', '.join(FEATURES)}")
+        if is_learned(self.kind):
+            from fviz.estimators.learned import require
+
+            require(self.kind)
         if not 0 < self.ratio <= 1:
             raise FvizError(f"--ratio {self.ratio}: must be in (0, 1]")
         if self.max_keypoints < 8:
@@ -31,12 +37,14 @@ class FeatureConfig:
 @dataclass
 class Features:
     """keypoints: (N, 2) float64 pixels; descriptors: (N, D); scores: (N,) the detector's responses, or None;
-    image_digest: the pixels' digest when a run's feature cache asked for it (taken while they are decoded)."""
+    image_digest: the pixels' digest when a run's feature cache asked for it (taken while they are decoded);
+    image_size: (width, height) of the image (learned matchers need it; hloc's features.h5 keeps it)."""
 
     keypoints: np.ndarray
     descriptors: np.ndarray | None
     scores: np.ndarray | None = None
     image_digest: str | None = None
+    image_size: tuple[int, int] | None = None
 
 
 @dataclass
@@ -77,6 +85,10 @@ def _detector(cfg: FeatureConfig):
 
 def detect(image: np.ndarray, cfg: FeatureConfig = FeatureConfig()) -> Features:
     """Keypoints and descriptors of one uint8 image (gray or RGB)."""
+    if is_learned(cfg.kind):
+        from fviz.estimators.learned import detect_many
+
+        return detect_many([image], cfg.kind, cfg.max_keypoints)[0]
     import cv2
 
     gray = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY) if image.ndim == 3 else image
@@ -162,7 +174,12 @@ def _hamming_nearest_two(da: np.ndarray, db: np.ndarray) -> tuple[np.ndarray, np
 
 
 def match(fa: Features, fb: Features, cfg: FeatureConfig = FeatureConfig()) -> Matches:
-    """Nearest neighbours a -> b with Lowe's ratio test, optionally kept only when mutual; best first."""
+    """Nearest neighbours a -> b with Lowe's ratio test, optionally kept only when mutual; best first.
+    Learned features: their own matcher (:func:`fviz.estimators.learned.match`; ratio and mutual unused)."""
+    if is_learned(cfg.kind):
+        from fviz.estimators.learned import match as learned_match
+
+        return learned_match(fa, fb, cfg.kind)
     if fa.descriptors is None or fb.descriptors is None or len(fa.keypoints) < 2 or len(fb.keypoints) < 2:
         return Matches(np.zeros((0, 2), int), np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0))
     da, db = fa.descriptors, fb.descriptors
@@ -226,6 +243,16 @@ class FeatureCache:
     def get_pair(self, key_a: str, image_a, key_b: str, image_b) -> tuple[Features, Features]:
         """Both images' features (images as in :meth:`get`); two missing ones are detected in parallel (OpenCV
         releases the GIL)."""
+        if key_a not in self._items and key_b not in self._items and key_a != key_b and is_learned(self.cfg.kind):
+            from fviz.estimators.learned import detect_many  # one batch (one forward pass) for both
+
+            ia, ib = _array(image_a), _array(image_b)
+            fa, fb = detect_many([ia, ib], self.cfg.kind, self.cfg.max_keypoints)
+            if self.fingerprint is not None:
+                fa.image_digest, fb.image_digest = self.fingerprint(ia), self.fingerprint(ib)
+            self.misses += 2
+            self.put({key_a: fa, key_b: fb})
+            return fa, fb
         if self.threads < 2 or key_a in self._items or key_b in self._items or key_a == key_b:
             return self.get(key_a, image_a), self.get(key_b, image_b)
         from concurrent.futures import ThreadPoolExecutor

