@@ -167,7 +167,7 @@ class Wilcoxon:
     method: str
 
 
-def signed_ranks(d) -> "tuple[np.ndarray, np.ndarray]":
+def signed_ranks(d) -> "tuple[np.ndarray, np.ndarray]":  # noqa: F821 (numpy imported inside)
     """(ranks of |d| with ties averaged, signs) of the non-zero differences. (N,) -> (n,), (n,)."""
     import numpy as np
 

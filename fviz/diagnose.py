@@ -332,30 +332,6 @@ def _direction_deg(K: np.ndarray, e: np.ndarray) -> np.ndarray:
     return np.degrees(np.arctan2(r[:2], r[2]))
 
 
-def signed_rank_p(d: np.ndarray) -> float:
-    """Two-sided Wilcoxon signed-rank test that the values ``d`` (N,) centre on 0: exact (the distribution of the
-    rank sum over all 2^N signs, by counting) up to 60 values, the normal approximation above. Zeros are dropped."""
-    d = np.asarray(d, np.float64)
-    d = d[d != 0]
-    n = len(d)
-    if n == 0:
-        return 1.0
-    ranks = np.argsort(np.argsort(np.abs(d))) + 1
-    w = int(ranks[d > 0].sum())
-    total = n * (n + 1) // 2
-    low = min(w, total - w)
-    if n > 60:
-        mean, sd = total / 2.0, np.sqrt(n * (n + 1) * (2 * n + 1) / 24.0)
-        from math import erfc, sqrt
-
-        return min(1.0, erfc((mean - low - 0.5) / sd / sqrt(2.0)))
-    counts = np.zeros(total + 1)
-    counts[0] = 1.0
-    for k in range(1, n + 1):  # the number of sign patterns with each rank sum
-        counts[k:] = counts[k:] + counts[:-k].copy()
-    return min(1.0, 2.0 * counts[: low + 1].sum() / 2.0**n)
-
-
 def pair_epipole_offset(rec: dict[str, Any]) -> tuple[dict[str, np.ndarray], float] | None:
     """The evidence :func:`gt_bias` reads from one results.jsonl record: ({tight fit: the offset (yaw, pitch;
     deg) of its epipole in image a from F_gt's}, camera a's focal length), on a pair with forward motion (F_gt's
@@ -387,8 +363,11 @@ def gt_bias(evidence) -> dict[str, Any] | None:
     for fits, _ in evidence:
         for name, offset in fits.items():
             per.setdefault(name, []).append(offset)
-    tests = [(signed_rank_p(np.array(o)[:, axis]), name, axis) for name, o in per.items() if len(o) >= GT_BIAS_MIN_PAIRS
-             for axis in (0, 1)]
+    from fviz.compare import wilcoxon_signed_rank
+
+    tests = [(wilcoxon_signed_rank(np.array(o)[:, axis]).p, name, axis) for name, o in per.items()
+             if len(o) >= GT_BIAS_MIN_PAIRS for axis in (0, 1)]
+    tests = [t for t in tests if np.isfinite(t[0])]  # NaN: no non-zero offset
     if not tests:
         return None
     p, name, axis = min(tests)

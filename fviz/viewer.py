@@ -175,22 +175,28 @@ def _last_line(lines: list[str]) -> str:
     return text[-1] if text else "no message"
 
 
-def serve_web(path: Path, host: str = "127.0.0.1", port: int = 9876, web_port: int = 9090,
-              blueprint: Path | None = None) -> None:
-    """Serve the web viewer until Ctrl-C, SIGTERM or SIGHUP; print its URL once it serves."""
+def prepare_serving(path: Path, host: str, port: int, web_port: int) -> None:
+    """What every web server of fviz checks first (the recording, two free ports), and SIGTERM / SIGHUP turned
+    into Ctrl-C, so that the server stops the same way on each."""
     if not Path(path).is_file():
         raise FvizError(f"no such recording: {path}")
     if port == web_port:
         raise FvizError(f"--port and --web-port are both {port}: they need two ports")
     check_port_free(host, port, "--port")
     check_port_free(host, web_port, "--web-port")
-    cmd, url = web_command(Path(path), host, port, web_port, blueprint)
 
     def _stop(signum, frame):
         raise KeyboardInterrupt
 
     for sig in (signal.SIGTERM, signal.SIGHUP):
         signal.signal(sig, _stop)
+
+
+def serve_web(path: Path, host: str = "127.0.0.1", port: int = 9876, web_port: int = 9090,
+              blueprint: Path | None = None) -> None:
+    """Serve Rerun's web viewer (``--web-static``) until Ctrl-C, SIGTERM or SIGHUP; print its URL once it serves."""
+    prepare_serving(path, host, port, web_port)
+    cmd, url = web_command(Path(path), host, port, web_port, blueprint)
     # Own process group, stopped as a whole; and killed by the kernel if fviz dies without stopping it.
     proc = subprocess.Popen(_tied_to_fviz(cmd), stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
                             stderr=subprocess.PIPE, text=True, errors="replace", start_new_session=True)

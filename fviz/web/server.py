@@ -7,7 +7,6 @@ from __future__ import annotations
 import base64
 import hashlib
 import http.server
-import signal
 import socketserver
 import struct
 import sys
@@ -216,20 +215,9 @@ class ClickServer:
 def serve_clicks(path: Path, host: str = "127.0.0.1", port: int = 9876, web_port: int = 9090,
                  blueprint: Path | None = None) -> None:
     """Serve the clickable page until Ctrl-C, SIGTERM or SIGHUP; print its URL once it serves."""
-    from fviz.viewer import check_port_free
+    from fviz.viewer import prepare_serving
 
-    if not Path(path).is_file():
-        raise FvizError(f"no such recording: {path}")
-    if port == web_port:
-        raise FvizError(f"--port and --web-port are both {port}: they need two ports")
-    check_port_free(host, port, "--port")
-    check_port_free(host, web_port, "--web-port")
-
-    def _stop(signum, frame):
-        raise KeyboardInterrupt
-
-    for sig in (signal.SIGTERM, signal.SIGHUP):
-        signal.signal(sig, _stop)
+    prepare_serving(path, host, port, web_port)
     server = ClickServer(path, host, port, web_port, blueprint).start()
     try:
         print(f"web viewer: {server.url}  (click a point of either image for its epipolar lines; Ctrl-C to stop)",
