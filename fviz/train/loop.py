@@ -637,6 +637,7 @@ def train(
     done = step >= total
     last_validated = history[-1]["step"] if history else -1
     stop = _StopRequests(main and world == 1).__enter__()
+    completed = False  # an error in flight is not hidden by one of closing train.rrd after it
     try:
         if watch_batch is not None and not any(f[0] == step for f in curves.frames):
             watch()  # where the network starts
@@ -716,11 +717,16 @@ def train(
                 report = heldout_report(recipe, weights)
                 if report:
                     write_text(out_dir / "heldout.json", json.dumps(report, indent=1))
+        completed = True
     finally:
         stop.__exit__()
         bar.close()
         if main:
-            curves.close()
+            try:
+                curves.close()
+            except (OSError, RuntimeError) as exc:  # a full disk: Rerun's file writer stops
+                if completed:
+                    raise FvizError(f"cannot write {out_dir / 'train.rrd'}: {exc}") from None
         if world > 1:
             import torch.distributed as dist
 
