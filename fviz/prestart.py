@@ -113,3 +113,17 @@ def _single_threaded_children():
             else:
                 os.environ[k] = v
 
+
+
+def import_in_background(*modules: str) -> None:
+    """Import ``modules`` in a thread while the caller works on. Not a daemon thread: an error that ends the
+    command at once would otherwise finalise the interpreter while a native extension (rerun, pyarrow) is half
+    imported, which crashes it (SIGSEGV or heap corruption after the error line, exit -11 instead of 2)."""
+    import threading
+
+    def run() -> None:
+        for name in modules:
+            with contextlib.suppress(Exception):
+                __import__(name)
+
+    threading.Thread(target=run, name="fviz-preload").start()

@@ -65,10 +65,9 @@ def pair(
     gt_matches: o.GtMatches = None,
 ) -> None:
     """Run estimators on one pair and record images, keypoints, epipolar lines, epipoles, residuals and metrics."""
-    import threading
+    from fviz.prestart import import_in_background
 
-    # rerun takes ~0.5 s to import: let it load while the features are computed.
-    threading.Thread(target=__import__, args=("rerun",), daemon=True).start()
+    import_in_background("rerun")  # ~0.5 s: it loads while the features are computed
     from fviz import api
     from fviz.errors import FvizError
     from fviz.estimators.registry import DEFAULT_ESTIMATORS

@@ -697,14 +697,9 @@ def _run_eval(config: RunConfig, out_dir: str | Path, workers: int | None = None
 
 def _preload_reports() -> None:
     """Import what the reports need in a thread while the pairs are evaluated (not after)."""
-    import threading
+    from fviz.prestart import import_in_background
 
-    def run() -> None:
-        for name in ("pyarrow.parquet", "rerun", "rerun.blueprint", "fviz.record.writer", "rich.console", "rich.table"):
-            with contextlib.suppress(Exception):
-                __import__(name)
-
-    threading.Thread(target=run, daemon=True, name="preload-reports").start()
+    import_in_background("pyarrow.parquet", "rerun", "rerun.blueprint", "fviz.record.writer", "rich.console", "rich.table")
 
 
 def _widened(config: RunConfig, out_dir: Path, resume: bool) -> RunConfig:
