@@ -55,7 +55,7 @@ class RecordingWriter:
     ``layout.END`` (see the module docstring).
     """
 
-    def __init__(self, path: str | Path, app_id: str = "fviz", blueprint=None, index: bool = True):
+    def __init__(self, path: str | Path, app_id: str = "fviz", blueprint=None, index: bool = True, recording_id: str | None = None):
         import threading
 
         import rerun as rr
@@ -73,7 +73,7 @@ class RecordingWriter:
         read_fd, self._write_fd = os.pipe()
         self._pump = threading.Thread(target=self._copy, args=(read_fd,), name="rrd-writer", daemon=True)
         self._pump.start()
-        self.rec = rr.RecordingStream(app_id, batcher_config=batching())
+        self.rec = rr.RecordingStream(app_id, recording_id=recording_id, batcher_config=batching())
         self.rec.set_log_time_enabled(False)  # deterministic files: only the ``pair`` timeline
         self.index = index
         try:

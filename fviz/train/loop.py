@@ -319,20 +319,19 @@ class _Curves:
 
     def snapshot(self) -> None:
         """Make ``path`` a complete recording of everything logged so far (atomic rename)."""
-        from fviz.atomic import commit, prepare
+        from fviz.record.writer import RecordingWriter
 
         rr = self.rr
-        final, tmp = prepare(self.path)  # a new file of its own (never a planted link); the mode of the one replaced
-        rec = rr.RecordingStream("fviz-train", recording_id=self.recording_id)
-        rec.set_log_time_enabled(False)
-        try:
-            names = [str(i) for i in range(len(self.pairs))]
-            bp = None
-            if self.pairs:
-                from fviz.record.layout import training_blueprint
+        names = [str(i) for i in range(len(self.pairs))]
+        bp = None
+        if self.pairs:
+            from fviz.record.layout import training_blueprint
 
-                bp = training_blueprint(names, [(p.size_a, p.size_b) for p in self.pairs], curves=True)
-            rec.save(str(tmp), default_blueprint=bp)
+            bp = training_blueprint(names, [(p.size_a, p.size_b) for p in self.pairs], curves=True)
+        # through fviz's writer: a new file of its own (never a planted link), renamed over path only when
+        # complete, and a full disk raises (Rerun's own file sink would stop with a log line and never return)
+        with RecordingWriter(self.path, "fviz-train", blueprint=bp, recording_id=self.recording_id) as w:
+            rec = w.rec
             for key, (steps, vals) in self.series.items():
                 rec.send_columns(key, indexes=[rr.TimeColumn("step", sequence=steps)], columns=rr.Scalars.columns(scalars=vals))
             if self.pairs:
@@ -342,11 +341,6 @@ class _Curves:
                 for step, F in self.frames:
                     log_training_step(rec, step, self.pairs, F, names, blueprint=False)
                 self.watch_seconds += time.perf_counter() - t0
-            rec.flush()
-            rec.disconnect()
-            commit(self.path, tmp, final)
-        finally:
-            tmp.unlink(missing_ok=True)
 
     close = snapshot
 
@@ -724,9 +718,9 @@ def train(
         if main:
             try:
                 curves.close()
-            except (OSError, RuntimeError) as exc:  # a full disk: Rerun's file writer stops
+            except FvizError:  # a full disk (one line naming train.rrd); an error in flight goes first
                 if completed:
-                    raise FvizError(f"cannot write {out_dir / 'train.rrd'}: {exc}") from None
+                    raise
         if world > 1:
             import torch.distributed as dist
 
