@@ -65,9 +65,6 @@ def pair(
     gt_matches: o.GtMatches = None,
 ) -> None:
     """Run estimators on one pair and record images, keypoints, epipolar lines, epipoles, residuals and metrics."""
-    from fviz.prestart import import_in_background
-
-    import_in_background("rerun")  # ~0.5 s: it loads while the features are computed
     from fviz import api
     from fviz.errors import FvizError
     from fviz.estimators.registry import DEFAULT_ESTIMATORS
@@ -91,6 +88,9 @@ def pair(
                       synthetic=synthetic, seed=seed, image_a=image_a, image_b=image_b, K=K, K_a=K_a, K_b=K_b, T_ab=T_ab,
                       F_gt=F_gt, pairs=pairs, images=images, index=index, colmap=colmap, min_shared=min_shared,
                       matches=matches, gt_matches=gt_matches)
+    from fviz.prestart import import_in_background
+
+    import_in_background("rerun")  # ~0.5 s: it loads while the features are computed (after the inputs are checked)
     result = api.inspect_pair(p, ests, features=features, max_keypoints=max_keypoints, ratio=ratio, mutual=mutual,
                               threshold=threshold, confidence=confidence, max_iters=max_iters, seed=seed, norm=norm,
                               eval_threshold=eval_threshold, timeout=estimator_timeout)
