@@ -15,6 +15,22 @@ pool_grid = [2, 4]
 """
 
 
+def synthetic_recipe(path, out_dir, extra: str = ""):
+    """A recipe training the tiny network on 8 synthetic pairs (4 held out), batches of 4, into ``out_dir``;
+    ``extra``: more lines of its [train] table. -> path."""
+    path.write_text(f"""{TINY_MODEL_TOML}[data]
+source = "synthetic"
+train_size = 8
+val_size = 4
+[train]
+batch_size = 4
+epochs = 5
+num_workers = 0
+out_dir = "{out_dir}"
+{extra}""")
+    return path
+
+
 def run_fviz(*args, cwd=None, timeout=120):
     return subprocess.run([sys.executable, "-m", "fviz", *map(str, args)], capture_output=True, text=True, cwd=cwd, timeout=timeout)
 

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from cli_util import TINY_MODEL_TOML
+from cli_util import synthetic_recipe
 
 from fviz.errors import FvizError
 from fviz.models import FNet
@@ -427,17 +427,7 @@ def test_cli_train_command(tmp_path, monkeypatch):
     def noop() -> None:  # a second command keeps "train" a subcommand
         pass
 
-    recipe = _write(tmp_path / "r.toml", f"""
-{TINY_MODEL_TOML}[data]
-source = "synthetic"
-train_size = 8
-val_size = 4
-[train]
-batch_size = 4
-epochs = 5
-num_workers = 0
-out_dir = "{tmp_path / 'out' / '{variant}'}"
-""")
+    recipe = synthetic_recipe(tmp_path / "r.toml", tmp_path / "out" / "{variant}")
     if not _synthetic_available():
         pytest.skip("fviz.data.synthetic not importable")
     runner = CliRunner()

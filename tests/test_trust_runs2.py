@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from cli_util import TINY_MODEL_TOML, assert_one_line_error, read_csv, run_fviz as _run_fviz
+from cli_util import assert_one_line_error, read_csv, run_fviz as _run_fviz, synthetic_recipe
 
 FAST = ("--max-keypoints", "400", "--workers", "1", "--no-progress")
 VOLATILE = {"seconds"}
@@ -147,20 +147,7 @@ def test_standard_figures_count_only_pairs_with_ground_truth(kitti_root, tmp_pat
 
 
 def train_recipe(tmp_path, out_dir, steps=2):
-    recipe = tmp_path / "r.toml"
-    recipe.write_text(f"""{TINY_MODEL_TOML}[data]
-source = "synthetic"
-train_size = 8
-val_size = 4
-[train]
-batch_size = 4
-epochs = 5
-max_steps = {steps}
-num_workers = 0
-threads = 1
-out_dir = "{out_dir}"
-""")
-    return recipe
+    return synthetic_recipe(tmp_path / "r.toml", out_dir, f"max_steps = {steps}\nthreads = 1\n")
 
 
 @pytest.fixture(scope="module")
