@@ -506,7 +506,7 @@ def write_triage_recording(path: Path, config, out_dir: Path, shown: list[Ranked
     names = config.series_names()
     ranges = series_ranges_of(result_from_record(records[r.index], config) for r in shown)
     with RecordingWriter(path, "fviz-triage", L.blueprint(names, size, single_pair=False, head=True, ranges=ranges)) as w:
-        log_static(w.rec, names, series=True, points=True)  # over the ranks: neighbours are unrelated pairs
+        log_static(w.rec, names, series=True, points=True, motion=False)  # over the ranks: neighbours are unrelated pairs
         for r in shown:
             rec = records[r.index]
             w.rec.set_time(L.RANK_TIMELINE, sequence=r.rank)

@@ -458,7 +458,11 @@ def series_ranges(path: str | Path, paths=None) -> dict[str, tuple | None]:
 def series_values(path: str | Path, entity: str) -> dict[str, list[float]]:
     """{series name: its value at each logged time (NaN: none)} of one of a run's plotted entities."""
     per: dict[str, list[float]] = {n: [] for n in series_names(path, entity)}
-    for row in column(path, entity, "Scalars:scalars"):
+    try:
+        rows = column(path, entity, "Scalars:scalars")
+    except FvizError:  # styled, never logged
+        rows = []
+    for row in rows:
         for n, v in zip(per, row or ()):
             per[n].append(math.nan if v is None else float(v))
     return per

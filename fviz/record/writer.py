@@ -690,17 +690,17 @@ def log_probe(rec, index: int, pair: Pair, result: PairResult, steps: int = PROB
 
 
 def log_static(rec, estimator_names: list[str], series: bool = False, legend: bool = True, points: bool = False,
-               ranges: dict | None = None) -> None:
+               ranges: dict | None = None, motion: bool = True) -> None:
     """Once per recording: the residual legend (``legend``: when it holds matches) and, for runs (``series``),
-    the names, colours and marks of the metric series and motion tracks (:func:`series_styles`), and their
-    legend (``layout.LEGEND``)."""
+    the names, colours and marks of the metric series and (``motion``) the motion tracks (:func:`series_styles`),
+    and their legend (``layout.LEGEND``)."""
     import rerun as rr
 
     if legend:
         rec.log("/", L.annotation_context(), static=True)
     if series:
         colors = L.estimator_colors(estimator_names)
-        for path in SERIES_PATHS:
+        for path in SERIES_PATHS if motion else [p for p in SERIES_PATHS if not p.startswith("motion/")]:
             cut = (ranges or {}).get(path) or (0, 0, {})
             rec.log(path, *series_styles(colors, points or path in POINT_PATHS, cut[2]), static=True)
         log_legend(rec, colors)
