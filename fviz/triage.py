@@ -492,7 +492,7 @@ def write_triage_recording(path: Path, config, out_dir: Path, shown: list[Ranked
     """triage.rrd: the ``rank`` timeline steps through the worst pairs first, each with inspect's full
     payload (the pair is evaluated again: estimators are seeded, so the values are the run's; its two-view
     tags are added to ``shown`` then, see :func:`add_two_view`); it opens on ``rank`` and its series are
-    plotted per rank."""
+    plotted per rank, as points (the motion tracks, which follow consecutive pairs, are eval.rrd's)."""
     import rerun as rr
 
     from fviz.data.pair import PairId
@@ -506,7 +506,7 @@ def write_triage_recording(path: Path, config, out_dir: Path, shown: list[Ranked
     names = config.series_names()
     ranges = series_ranges_of(result_from_record(records[r.index], config) for r in shown)
     with RecordingWriter(path, "fviz-triage", L.blueprint(names, size, single_pair=False, head=True, ranges=ranges)) as w:
-        log_static(w.rec, names, series=True)
+        log_static(w.rec, names, series=True, points=True, motion=False)  # over the ranks: neighbours are unrelated pairs
         for r in shown:
             rec = records[r.index]
             w.rec.set_time(L.RANK_TIMELINE, sequence=r.rank)
@@ -515,9 +515,9 @@ def write_triage_recording(path: Path, config, out_dir: Path, shown: list[Ranked
                 add_two_view(r, rec, pair, result, by)
                 if (note := gt_suspect_note(pair, result)) is not None:
                     result.notes.insert(0, note)
-                log_pair(w.rec, r.index, pair, result, single_pair=False, clear_reference=True)
+                log_pair(w.rec, r.index, pair, result, single_pair=False, clear_reference=True, motion=False)
             except Exception:  # the pair failed in eval too: its record says why
-                log_summary_pair(w.rec, r.index, rec, result_from_record(rec, config))
+                log_summary_pair(w.rec, r.index, rec, result_from_record(rec, config), motion=False)
                 w.rec.log(L.REFERENCE, rr.LineStrips2D([]))  # no reference lines left from the rank before
             w.rec.log(TAGS_ENTITY, rr.TextDocument(rank_banner(r, by, metric), media_type="text/markdown"))
             w.pair_done()

@@ -30,7 +30,8 @@ Entity paths (``{v}`` is the view, ``a`` or ``b``; ``{e}`` an estimator name, ``
     pair/metrics                AnyValues: ``estimators`` (names) and one column per metric, in that order
                                 (what ``fviz summary`` and the tests read)
     metrics/{metric}            Scalars (runs of many pairs): one named, coloured series per F on ``pair``
-    motion/{track}              Scalars (runs of many pairs): per F the image-a epipole (``epipole_x``,
+    metrics/{metric}/log10      Scalars: the log10 an error metric's plot draws (LOG_METRICS, log_values)
+    motion/{track}              Scalars (eval.rrd: they follow consecutive pairs, not triage's ranks): per F the image-a epipole (``epipole_x``,
                                 ``epipole_y`` px; NaN when at infinity, its direction in ``epipole_dir_deg``),
                                 ``rotation_deg`` (angle of R) and the translation direction ``t_x``, ``t_y``,
                                 ``t_z`` (unit, the ground truth's sign)
@@ -71,8 +72,9 @@ adds ``rank``); ``inspect`` logs the pair at ``probe`` = 0 too, so each probe st
 The stored blueprint (:func:`blueprint`) opens on an **overview** tab (both images stacked with the ground
 truth's residuals and lines, every F's epipole, the comparison chart and the summary), then **one tab per
 estimator** named after it (image a above image b with only that estimator's keypoints, lines and epipole,
-and the ground truth's lines in white), then **probe** (inspect); runs of many pairs add **metrics** and
-**motion** (series over the ``pair`` timeline), and open on them when the recording holds no images.
+and the ground truth's lines in white), then **probe** (inspect); runs of many pairs add **metrics** (errors on log10 axes; over
+``pair``, or as points over triage's ``rank``) and, over ``pair``, **motion**, and open on them when the recording
+holds no images.
 ``fviz open FILE --tab NAME`` rebuilds this blueprint from the file (:func:`fviz.record.reader.recording_blueprint`)
 with another tab active.
 """
@@ -224,35 +226,49 @@ def metric_title(key: str) -> str:
     return METRIC_TITLES.get(key, key)
 
 
-SERIES_CUT = 5.0  # a series whose 5-95 % band is this many times wider than the others' (median) is cut off
+SERIES_CUT = 5.0  # a motion track whose 5-95 % band is this many times wider than the others' (median) is cut off
+# Error metrics are plotted on log axes (Rerun's plots are linear: their log10 is logged beside the value, see
+# metric_plot), so that one range holds an estimator 100x worse beside the best; a value below LOG_FLOOR (the
+# ground truth's zero errors) is plotted at it, below the axis.
+LOG_METRICS = frozenset({"sed_median", "rot_err_deg", "trans_err_deg", "nsgd", "epipole_err_deg"})
+LOG_FLOOR = 1e-4
 
 
-def series_range(values: dict[str, Sequence[float]], floor: float = 1e-3, zero: bool = False) -> tuple[float, float, list[str]] | None:
-    """The y range of one plot of a run, so that every series but a wild one is readable: the union of the
-    series' 5-95 % bands, leaving out a series whose band is over SERIES_CUT times wider than the median band
-    of the others (8-point's +-6000 px epipole swings beside ransac's +-30 px), padded by a quarter of the span
-    (at least ``floor``); from 0 when ``zero`` (errors). -> (low, high, the series cut), None without a
-    finite value. ``values``: {series name: its values over the pairs (NaN: none)}."""
+def log_values(values: Sequence[float]) -> np.ndarray:
+    """What a log metric's plot draws: log10 of the values, at least log10(LOG_FLOOR); NaN stays NaN."""
+    with np.errstate(invalid="ignore"):
+        return np.log10(np.maximum(np.asarray(values, float), LOG_FLOOR))
+
+
+def series_range(values: dict[str, Sequence[float]], floor: float = 1e-3, zero: bool = False,
+                 cut: bool = True) -> tuple[float, float, dict] | None:
+    """The y range of one plot of a run. With ``cut`` (motion tracks), every series but a wild one is readable:
+    the union of the series' 5-95 % bands, leaving out a series whose band is over SERIES_CUT times wider than
+    the median band of the others (8-point's +-6000 px epipole swings beside ransac's +-30 px), padded by a
+    quarter of the span; without (metrics), every value of every series, padded by a tenth. The padding is at
+    least ``floor``; from 0 when ``zero``. -> (low, high, {series cut: its 5-95 % band}), None without a
+    finite value.
+    ``values``: {series name: its values over the pairs (NaN: none)}."""
     bands = {}
     for name, v in values.items():
         v = np.asarray(v, float)
         v = v[np.isfinite(v)]
         if len(v):
-            bands[name] = (float(np.percentile(v, 5)), float(np.percentile(v, 95)))
+            bands[name] = (float(np.percentile(v, 5)), float(np.percentile(v, 95))) if cut else (float(v.min()), float(v.max()))
     if not bands:
         return None
     widths = {n: hi - lo for n, (lo, hi) in bands.items()}
-    cut = []
-    for n in bands:
+    off = {}
+    for n in bands if cut else ():
         others = [w for m, w in widths.items() if m != n and w > 0]
-        if len(bands) > 2 and others and widths[n] > SERIES_CUT * float(np.median(others)):
-            cut.append(n)
-    kept = [bands[n] for n in bands if n not in cut]
+        if len(bands) > 2 and others and widths[n] > SERIES_CUT * max(float(np.median(others)), floor):
+            off[n] = bands[n]
+    kept = [bands[n] for n in bands if n not in off]
     lo, hi = min(b[0] for b in kept), max(b[1] for b in kept)
     if zero:
         lo = min(lo, 0.0)
-    pad = max(0.25 * (hi - lo), floor)
-    return (lo if zero and lo == 0.0 else lo - pad), hi + pad, cut
+    pad = max((0.25 if cut else 0.1) * (hi - lo), floor)
+    return (lo if zero and lo == 0.0 else lo - pad), hi + pad, off
 
 
 # Per track: the smallest padding of its range (px, deg, unit vector), so that a flat series stays a line.
@@ -298,7 +314,18 @@ def match_points(x_a: np.ndarray, x_b: np.ndarray, size_a: tuple[int, int]) -> n
 
 
 def metric(key: str) -> str:
+    """A metric's values over the pairs (what readers read)."""
     return f"metrics/{key}"
+
+
+def metric_plot(key: str) -> str:
+    """What a metric's plot draws: ``metrics/{key}/log10`` (log10 of the values, :func:`log_values`) for an
+    error (LOG_METRICS), else the values."""
+    return f"{metric(key)}/log10" if key in LOG_METRICS else metric(key)
+
+
+def plot_title(key: str) -> str:
+    return f"log10 of {metric_title(key)}" if key in LOG_METRICS else metric_title(key)
 
 
 def motion(track: str) -> str:
@@ -420,14 +447,20 @@ def legend_view(origin: str, n: int, name: str, pitch: float = 24.0):
                              visual_bounds=rrb.VisualBounds2D(x_range=[-20.0, 260.0], y_range=[-pitch, n * pitch]))
 
 
+def _short(v: float) -> str:
+    return f"{v / 1000:.3g}k" if abs(v) >= 1000 else f"{v:.3g}"
+
+
 def _series_grid(entity_of, tracks: Sequence[tuple[str, str]], name: str, ranges: dict | None, n_series: int):
     """One plot per track, its y range from ``ranges`` ({path: series_range or None}; a track with no finite
-    value is left out), the plots' legends hidden (they covered the data) and one legend view instead."""
+    value is left out), the plots' legends hidden (they covered the data) and one legend view instead. A series
+    cut off a plot (drawn as points there, see :func:`fviz.record.writer.series_styles`) has its 5-95 % band in
+    the plot's title."""
     import rerun.blueprint as rrb
     from rerun.blueprint.archetypes import PlotBackground, PlotLegend
 
     dark = PlotBackground(color=CHART_BACKGROUND, show_grid=True)  # the ground truth's white series shows
-    views = []
+    views, any_cut = [], False
     for k, title in tracks:
         path = entity_of(k)
         if ranges is not None and ranges.get(path) is None:
@@ -436,10 +469,11 @@ def _series_grid(entity_of, tracks: Sequence[tuple[str, str]], name: str, ranges
         if ranges is not None:
             lo, hi, cut = ranges[path]
             axis = rrb.ScalarAxis(range=(lo, hi), zoom_lock=False)
-            note = f"; {', '.join(cut)} off-scale" if cut else ""
+            note = "".join(f"; {n} off-scale {_short(a)} to {_short(b)}" for n, (a, b) in cut.items())
+            any_cut |= bool(cut)
         views.append(rrb.TimeSeriesView(origin=path, name=title + note, background=dark, axis_y=axis,
                                         plot_legend=PlotLegend(visible=False)))
-    views.append(legend_view(LEGEND, n_series, "legend (scroll a plot to zoom out: off-scale series)"))
+    views.append(legend_view(LEGEND, n_series, "legend" + (" (scroll a plot to zoom out: off-scale series)" if any_cut else "")))
     return rrb.Grid(*views, name=name)
 
 
@@ -478,8 +512,9 @@ def blueprint(names: Sequence[str], sizes: tuple[tuple[int, int], tuple[int, int
         if single_pair:
             tabs.append(probe_tab(sizes))
     if not single_pair:
-        tabs.append(_series_grid(metric, [(k, metric_title(k)) for k in SERIES_METRICS], "metrics", ranges, len(names)))
-        tabs.append(_series_grid(motion, MOTION_TRACKS, "motion", ranges, len(names)))
+        tabs.append(_series_grid(metric_plot, [(k, plot_title(k)) for k in SERIES_METRICS], "metrics", ranges, len(names)))
+        if not head:  # the tracks follow consecutive pairs: not over triage's ranks
+            tabs.append(_series_grid(motion, MOTION_TRACKS, "motion", ranges, len(names)))
         if curves:
             tabs.append(curves_tab(len(ests)))
         if run_summary:
@@ -512,10 +547,35 @@ def watch_colors() -> dict[str, tuple[int, int, int]]:
     return {NET: PALETTE[0], GT: GT_COLOR}
 
 
+# train.rrd's curves tab: (plot title, its series); each series' name and colour in TRAIN_SERIES.
+TRAIN_PLOTS = (
+    ("loss: training batches vs held-out validation pairs", ("train/loss", "val/loss")),
+    ("validation median SED (px) vs a constant F (mean target)", ("val/sed_px", "val/constant_sed_px")),
+    ("validation |x_b^T F x_a| (unit F): mean, mean square", ("val/epi_abs", "val/epi_sqr")),
+    ("validation F distance", ("val/f_dist",)),
+    ("learning rate", ("train/lr",)),
+    ("gradient norm", ("train/grad_norm",)),
+)
+TRAIN_SERIES = {
+    "train/loss": ("training loss", PALETTE[0]), "val/loss": ("validation loss", PALETTE[1]),
+    "val/sed_px": ("network", PALETTE[1]), "val/constant_sed_px": ("constant F", GT_COLOR),
+    "val/epi_abs": ("mean", PALETTE[1]), "val/epi_sqr": ("mean square", PALETTE[2]),
+    "val/f_dist": ("F distance", PALETTE[1]), "train/lr": ("learning rate", PALETTE[0]),
+    "train/grad_norm": ("gradient norm", PALETTE[0]),
+}
+
+
+def training_style(key: str) -> dict:
+    """SeriesLines fields (name, colour) of a train.rrd curve; a curve fviz does not know keeps its key."""
+    name, color = TRAIN_SERIES.get(key, (key.rpartition("/")[2], PALETTE[4]))
+    return {"names": [name], "colors": [color]}
+
+
 def training_blueprint(names: Sequence[str], sizes: Sequence[tuple[tuple[int, int], tuple[int, int]]], curves: bool = False):
     """train.rrd's layout: one tab per watched pair (image a above b, the network's lines and epipole beside the
     ground truth's, keypoints by residual; its SED over ``step`` below), and with ``curves`` a tab of the
-    training and validation curves. The time panel opens on ``step``: scrubbing it shows the lines converge."""
+    training and validation curves (TRAIN_PLOTS: the two losses in one plot, the validation SED beside a
+    constant F's, legends on). The time panel opens on ``step``: scrubbing it shows the lines converge."""
     import rerun.blueprint as rrb
     from rerun.blueprint.archetypes import PlotBackground
 
@@ -528,8 +588,8 @@ def training_blueprint(names: Sequence[str], sizes: Sequence[tuple[tuple[int, in
         plot = rrb.TimeSeriesView(origin=watch(name, "sed_px"), name=f"{name}: median SED (px)", background=dark)
         tabs.append(rrb.Vertical(images, plot, row_shares=[3, 1], name=f"pair {name}"))
     if curves:
-        tabs.append(rrb.Grid(rrb.TimeSeriesView(origin="train", name="training", background=dark),
-                             rrb.TimeSeriesView(origin="val", name="validation", background=dark), name="curves"))
+        tabs.append(rrb.Grid(*(rrb.TimeSeriesView(origin="/", contents=[f"+ {k}" for k in keys], name=title, background=dark)
+                               for title, keys in TRAIN_PLOTS), name="curves"))
     root = rrb.Tabs(*tabs) if tabs else rrb.Tabs(rrb.TextDocumentView(origin="/", name="empty"))
     time_panel = rrb.TimePanel(state="expanded", timeline=TRAIN_TIMELINE, play_state="paused", fps=4.0)
     return rrb.Blueprint(root, time_panel, collapse_panels=False)

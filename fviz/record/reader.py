@@ -444,22 +444,40 @@ def suspect_notice_of(path: str | Path) -> str:
 
 def series_ranges(path: str | Path, paths=None) -> dict[str, tuple | None]:
     """The y ranges of a run's plots (as the writer chose them) from the series the file holds."""
-    from fviz.record.writer import SERIES_PATHS, ranges_of_values
+    from fviz.record.writer import VALUE_PATHS, ranges_of_values
 
     paths = paths if paths is not None else entity_paths(path)
     values: dict[str, dict[str, list[float]]] = {}
-    for p in SERIES_PATHS:
+    for p in VALUE_PATHS:
         if p not in paths:
             continue
-        names = next((v for v in column(path, p, "SeriesLines:names") if v), [])
-        per: dict[str, list[float]] = {n: [] for n in names}
-        for row in column(path, p, "Scalars:scalars"):
-            if row is None:
-                continue
-            for n, v in zip(names, row):
-                per[n].append(math.nan if v is None else float(v))
-        values[p] = per
+        values[p] = series_values(path, p)
     return ranges_of_values(values)
+
+
+def series_values(path: str | Path, entity: str) -> dict[str, list[float]]:
+    """{series name: its value at each logged time (NaN: none)} of one of a run's plotted entities."""
+    per: dict[str, list[float]] = {n: [] for n in series_names(path, entity)}
+    try:
+        rows = column(path, entity, "Scalars:scalars")
+    except FvizError:  # styled, never logged
+        rows = []
+    for row in rows:
+        for n, v in zip(per, row or ()):
+            per[n].append(math.nan if v is None else float(v))
+    return per
+
+
+def series_names(path: str | Path, entity: str) -> list[str]:
+    """The names of a run's series (drawn as lines or as points), in the order of their values."""
+    for style in ("SeriesLines:names", "SeriesPoints:names"):
+        try:
+            names = next((v for v in column(path, entity, style) if v), None)
+        except FvizError:
+            names = None
+        if names:
+            return list(names)
+    return []
 
 
 def _blueprint_fields(reader) -> dict[str, dict[str, Any]]:

@@ -23,7 +23,10 @@ from fviz.data.pair import Pair
 from fviz.diagnose import GT_SUSPECT_NOTE
 from fviz.errors import FvizError
 from fviz.evaluate import PairResult
-from fviz.geometry import border_point, clip_lines, describe_epipole, epipoles, lines_in_a, lines_in_b, rotation_angle_deg
+from fviz.geometry import (
+    AUC_THRESHOLDS_DEG, NSGD_RECALL_THRESHOLD, border_point, clip_lines, describe_epipole, epipoles, lines_in_a, lines_in_b,
+    pose_auc, rotation_angle_deg,
+)
 from fviz.record import layout as L
 
 FLUSH_PAIRS = 50  # a run's recording is flushed every this many pairs (see RecordingWriter.pair_done)
@@ -400,10 +403,10 @@ def _names(result: PairResult) -> list[str]:
 
 
 def log_pair(rec, index: int, pair: Pair, result: PairResult, n_lines: int = 30, colors: Colors | None = None,
-             probe_steps: int = 0, single_pair: bool = True, clear_reference: bool = False) -> None:
+             probe_steps: int = 0, single_pair: bool = True, clear_reference: bool = False, motion: bool = True) -> None:
     """Everything of one pair at ``pair`` = index (see :mod:`fviz.record.layout`): images, keypoints,
     lines, epipoles, the summary, the metrics table, and the comparison chart (``single_pair``) or the
-    metric series and motion tracks (runs). The reference lines when the notes say the ground truth is
+    metric series and (``motion``) the motion tracks (runs). The reference lines when the notes say the ground truth is
     suspect; ``clear_reference`` (a run whose pairs carry that verdict: triage) logs them empty otherwise."""
     import rerun as rr
 
@@ -453,7 +456,7 @@ def log_pair(rec, index: int, pair: Pair, result: PairResult, n_lines: int = 30,
     if single_pair:
         log_comparison(rec, result, colors)
     else:
-        log_series(rec, result)
+        log_series(rec, result, motion)
 
 
 def score_labels(m) -> dict:
@@ -603,14 +606,18 @@ def motion_values(result: PairResult) -> dict[str, list[float]]:
     return out
 
 
-def log_series(rec, result: PairResult) -> None:
-    """The metric series and motion tracks of the pair at the current time (runs of many pairs): one
-    value per F, in the order of the series names (NaN for a failed estimator)."""
+def log_series(rec, result: PairResult, motion: bool = True) -> None:
+    """The metric series (and with ``motion`` the motion tracks) of the pair at the current time (runs of many
+    pairs): one value per F, in the order of the series names (NaN for a failed estimator); an error metric's
+    log10 beside it, for its plot (layout.metric_plot)."""
     import rerun as rr
 
     for key in L.SERIES_METRICS:
-        rec.log(L.metric(key), rr.Scalars([r.metrics.get(key, np.nan) if not r.error else np.nan for r in result.estimators]))
-    for key, values in motion_values(result).items():
+        values = [r.metrics.get(key, np.nan) if not r.error else np.nan for r in result.estimators]
+        rec.log(L.metric(key), rr.Scalars(values))
+        if key in L.LOG_METRICS:
+            rec.log(L.metric_plot(key), rr.Scalars(L.log_values(values)))
+    for key, values in (motion_values(result).items() if motion else ()):
         rec.log(L.motion(key), rr.Scalars(values))
 
 
@@ -682,37 +689,60 @@ def log_probe(rec, index: int, pair: Pair, result: PairResult, steps: int = PROB
     return len(order)
 
 
-def log_static(rec, estimator_names: list[str], series: bool = False, legend: bool = True) -> None:
+def log_static(rec, estimator_names: list[str], series: bool = False, legend: bool = True, points: bool = False,
+               ranges: dict | None = None, motion: bool = True) -> None:
     """Once per recording: the residual legend (``legend``: when it holds matches) and, for runs (``series``),
-    the names and colours of the metric series and motion tracks, and their legend (``layout.LEGEND``)."""
+    the names, colours and marks of the metric series and (``motion``) the motion tracks (:func:`series_styles`),
+    and their legend (``layout.LEGEND``)."""
     import rerun as rr
 
     if legend:
         rec.log("/", L.annotation_context(), static=True)
     if series:
         colors = L.estimator_colors(estimator_names)
-        style = rr.SeriesLines(names=list(colors), colors=[_rgb(c) for c in colors.values()])
-        for path in SERIES_PATHS:
-            rec.log(path, style, static=True)
+        for path in SERIES_PATHS if motion else [p for p in SERIES_PATHS if not p.startswith("motion/")]:
+            cut = (ranges or {}).get(path) or (0, 0, {})
+            rec.log(path, *series_styles(colors, points or path in POINT_PATHS, cut[2]), static=True)
         log_legend(rec, colors)
 
 
-SERIES_PATHS = tuple([L.metric(k) for k in L.SERIES_METRICS] + [L.motion(k) for k, _ in L.MOTION_TRACKS])
+# The series' values (what readers read) and, for the errors, the log10 their plots draw (layout.metric_plot).
+VALUE_PATHS = tuple([L.metric(k) for k in L.SERIES_METRICS] + [L.motion(k) for k, _ in L.MOTION_TRACKS])
+SERIES_PATHS = VALUE_PATHS + tuple(L.metric_plot(k) for k in L.SERIES_METRICS if k in L.LOG_METRICS)
+POINT_PATHS = frozenset({L.motion("epipole_dir_deg")})  # sporadic samples (the pairs whose epipole is at infinity)
+MARKER_SIZE = 3.0
 
 
-def log_legend(rec, colors: Colors, path: str = L.LEGEND, origin=(0.0, 0.0), pitch: float = 24.0) -> None:
-    """One row per F: a bar in its colour and its name beside it (labels white, on Rerun's grey boxes, their
-    points 0.4 rows up: Rerun draws a label below its point), drawn in 2D on the charts' dark background.
-    -> rows of ``pitch`` units from ``origin``."""
+def series_styles(colors: Colors, points: bool = False, cut: Iterable[str] = ()) -> list:
+    """How a plot draws its series (one per F, named and in its colour): lines joining consecutive pairs, or
+    points (``points``: series over triage's ranks, where neighbours are unrelated pairs; a series ``cut`` off
+    the plot's range: its off-scale swings would streak across the plot). -> archetypes to log on the series."""
+    import rerun as rr
+
+    names, rgb = list(colors), [_rgb(c) for c in colors.values()]
+    dots = [points or n in set(cut) for n in names]
+    out = [] if all(dots) else [rr.SeriesLines(names=names, colors=rgb, visible_series=[not d for d in dots])]
+    if any(dots):
+        out.append(rr.SeriesPoints(names=names, colors=rgb, visible_series=dots, marker_sizes=[MARKER_SIZE] * len(names)))
+    return out
+
+
+def log_legend(rec, colors: Colors, path: str = L.LEGEND, origin=(0.0, 0.0), pitch: float = 24.0,
+               labels: dict[str, str] | None = None) -> None:
+    """One row per F: a bar in its colour and its name beside it (or ``labels[name]``, centred as far right as
+    it is long, ~7 units a character), labels white on Rerun's grey boxes, their points 0.4 rows up (Rerun
+    draws a label below its point), drawn in 2D on the charts' dark background. -> rows of ``pitch`` units
+    from ``origin``."""
     import rerun as rr
 
     x0, y0 = origin
     rows = list(colors.items())
     bars = [[(x0, y0 + i * pitch), (x0 + 40.0, y0 + i * pitch)] for i in range(len(rows))]
-    labels = ["ground truth" if n == L.GT else n for n, _ in rows]
+    text = [(labels or {}).get(n, "ground truth" if n == L.GT else n) for n, _ in rows]
+    xs = [x0 + 120.0 if labels is None else x0 + 60.0 + 3.6 * len(t) for t in text]
     rec.log(path, rr.LineStrips2D(bars, colors=[_rgb(c) for _, c in rows], radii=pitch / 4),
-            rr.Points2D([(x0 + 120.0, y0 + (i - 0.4) * pitch) for i in range(len(rows))], radii=0.1, colors=[(255, 255, 255)],
-                        labels=labels, show_labels=True), static=True)
+            rr.Points2D([(x, y0 + (i - 0.4) * pitch) for i, x in enumerate(xs)], radii=0.1, colors=[(255, 255, 255)],
+                        labels=text, show_labels=True), static=True)
 
 
 # ---------------------------------------------------------------------------------------------- runs: ranges, curves
@@ -734,14 +764,19 @@ def series_values(results: Iterable[PairResult]) -> dict[str, dict[str, list[flo
 
 
 def ranges_of_values(values: dict[str, dict[str, Sequence[float]]]) -> dict[str, tuple | None]:
-    """{series path: its plot's y range (layout.series_range) or None} of :func:`series_values`."""
+    """{plotted path: its plot's y range (layout.series_range) or None} of :func:`series_values` (or the values
+    the recording holds): an error metric's on its log10 (every value above LOG_FLOOR), the other metrics'
+    from 0 with every value, the motion tracks' leaving a wild series out."""
     out = {}
     for path, per in values.items():
-        if path not in SERIES_PATHS:
-            continue
-        track = path.removeprefix("motion/")
-        zero = path.startswith("metrics/")
-        out[path] = L.series_range(per, L.TRACK_FLOOR.get(track, 1e-3), zero=zero)
+        key = path.removeprefix("metrics/")
+        if path.startswith("motion/"):
+            out[path] = L.series_range(per, L.TRACK_FLOOR.get(path.removeprefix("motion/"), 1e-3))
+        elif key in L.LOG_METRICS:
+            logs = {n: L.log_values(np.where(np.asarray(v, float) > L.LOG_FLOOR, v, np.nan)) for n, v in per.items()}
+            out[L.metric_plot(key)] = L.series_range(logs, 0.1, cut=False)
+        elif key in L.SERIES_METRICS:
+            out[path] = L.series_range(per, zero=True, cut=False)
     return out
 
 
@@ -755,6 +790,9 @@ CURVE_METRICS = (
     ("sed_median", "median SED (px)", np.geomspace(0.01, 10.0, 61), True),
     ("nsgd", "NSGD (FM-Bench)", np.geomspace(1e-3, 1.0, 61), True),
 )
+# The standard figures' thresholds, marked on their curves: (x, label)
+CURVE_MARKS = {"pose_err_deg": [(t, f"{t:g}°") for t in AUC_THRESHOLDS_DEG],
+               "nsgd": [(NSGD_RECALL_THRESHOLD, f"{NSGD_RECALL_THRESHOLD:g}")]}
 
 
 def cumulative_curve(values: Sequence[float], thresholds: np.ndarray) -> np.ndarray:
@@ -763,45 +801,66 @@ def cumulative_curve(values: Sequence[float], thresholds: np.ndarray) -> np.ndar
     return (v[:, None] < np.asarray(thresholds, float)[None]).mean(axis=0) if len(v) else np.zeros(len(thresholds))
 
 
+def curve_figures(per_pair: dict[str, dict[str, Sequence[float]]], name: str) -> str:
+    """The standard figures read off ``name``'s curves (those it has): "AUC@5/10/20° 0.74/0.87/0.94, NSGD recall 100%"."""
+    out = []
+    if (pose := per_pair.get("pose_err_deg", {}).get(name)) is not None:
+        slash = "/".join(f"{t:g}" for t in AUC_THRESHOLDS_DEG)
+        out.append(f"AUC@{slash}° " + "/".join(f"{a:.2f}" for a in pose_auc(pose)))
+    if (nsgd := per_pair.get("nsgd", {}).get(name)) is not None:
+        out.append(f"NSGD recall {cumulative_curve(nsgd, [NSGD_RECALL_THRESHOLD])[0]:.0%}")
+    return ", ".join(out)
+
+
 def log_curves(rec, per_pair: dict[str, dict[str, Sequence[float]]], colors: Colors) -> None:
     """``curves/{metric}``: per metric of CURVE_METRICS a panel with one curve per F in its colour (share of the
-    pairs below x), axes and ticks, and the curves' values (AnyValues: ``thresholds``, ``estimators``,
-    ``recall`` row-major F x threshold) for readers. ``per_pair``: {metric: {F: value per pair, NaN failed}}."""
+    pairs below x), axes and ticks, the standard figures' thresholds marked (CURVE_MARKS), and the curves'
+    values (AnyValues: ``thresholds``, ``estimators``, ``recall`` row-major F x threshold) for readers; below, the
+    legend with each F's figures (AUC, NSGD recall). ``per_pair``: {metric: {F: value per pair, NaN failed}}."""
     import rerun as rr
 
-    white = (200, 200, 200)
+    white, grey = (200, 200, 200), (150, 150, 150)
     for i, (key, title, thresholds, log_x) in enumerate(CURVE_METRICS):
         per = {n: v for n, v in per_pair.get(key, {}).items() if n != L.GT}
         if not per:
             continue
         x0 = i * (L.CURVE_W + L.CURVE_GAP)
         u = np.log10(thresholds) if log_x else thresholds
-        px = x0 + L.CURVE_W * (u - u[0]) / (u[-1] - u[0])
+
+        def screen_x(t: float) -> float:
+            return x0 + L.CURVE_W * ((np.log10(t) if log_x else t) - u[0]) / (u[-1] - u[0])
+
         recall = {n: cumulative_curve(v, thresholds) for n, v in per.items()}
-        strips = [np.stack([px, L.CURVE_H * (1 - r)], -1) for r in recall.values()]
+        strips = [np.stack([screen_x(thresholds), L.CURVE_H * (1 - r)], -1) for r in recall.values()]
         lo, hi = float(thresholds[0]), float(thresholds[-1])
         ticks_x = ([10.0**k for k in range(math.ceil(math.log10(lo) - 1e-9), math.floor(math.log10(hi) + 1e-9) + 1)]
                    if log_x else list(np.linspace(lo, hi, 5)))
         axes = [[(x0, 0.0), (x0, L.CURVE_H), (x0 + L.CURVE_W, L.CURVE_H)]]
         tick_pos, tick_labels = [], []
         for t in ticks_x:
-            x = x0 + L.CURVE_W * ((np.log10(t) if log_x else t) - u[0]) / (u[-1] - u[0])
-            axes.append([(x, L.CURVE_H), (x, L.CURVE_H + 6)])
-            tick_pos.append((x, L.CURVE_H + 22))
+            axes.append([(screen_x(t), L.CURVE_H), (screen_x(t), L.CURVE_H + 6)])
+            tick_pos.append((screen_x(t), L.CURVE_H + 22))
             tick_labels.append(f"{t:g}")
         for y in (0.0, 0.5, 1.0):
             axes.append([(x0 - 6, L.CURVE_H * (1 - y)), (x0, L.CURVE_H * (1 - y))])
             tick_pos.append((x0 - 30, L.CURVE_H * (1 - y)))
             tick_labels.append(f"{y:.0%}")
-        tick_pos.append((x0 + L.CURVE_W / 2, -30.0))
+        marks = [[(screen_x(t), 0.0), (screen_x(t), L.CURVE_H)] for t, _ in CURVE_MARKS.get(key, ())]
+        for t, label in CURVE_MARKS.get(key, ()):  # above the panel, below its title
+            tick_pos.append((screen_x(t), -24.0))
+            tick_labels.append(label)
+        tick_pos.append((x0 + L.CURVE_W / 2, -52.0))
         tick_labels.append(f"share of the pairs with {title} < x" + (" (log x)" if log_x else ""))
         rec.log(f"{L.CURVES}/{key}",
-                rr.LineStrips2D(strips + axes, colors=[_rgb(colors[n]) for n in recall] + [white] * len(axes),
-                                radii=[2.0] * len(strips) + [0.8] * len(axes)),
+                rr.LineStrips2D(strips + axes + marks, colors=[_rgb(colors[n]) for n in recall] + [white] * len(axes) + [grey] * len(marks),
+                                radii=[2.0] * len(strips) + [0.8] * len(axes) + [0.6] * len(marks)),
                 rr.Points2D(tick_pos, radii=0.1, colors=[(255, 255, 255)], labels=tick_labels, show_labels=True),
                 rr.AnyValues(thresholds=np.asarray(thresholds, float), estimators=list(recall),
                              recall=np.concatenate(list(recall.values()))), static=True)
-    log_legend(rec, {n: c for n, c in colors.items() if n != L.GT}, f"{L.CURVES}/legend", (0.0, L.CURVE_H + 70.0))
+    shown = {n: c for n, c in colors.items() if n != L.GT}
+    figures = {n: curve_figures(per_pair, n) for n in shown}
+    log_legend(rec, shown, f"{L.CURVES}/legend", (0.0, L.CURVE_H + 70.0),
+               labels={n: f"{n}: {f}" if f else n for n, f in figures.items()})
 
 
 def suspect_reference(notes: Sequence[str]) -> str | None:

@@ -474,14 +474,15 @@ def _pair_text(rec: dict[str, Any], result: PairResult) -> str:
     return text + (f"\n\n**pair failed**: {rec['error']}\n" if rec["error"] else "")
 
 
-def log_summary_pair(rec_stream, index: int, rec: dict[str, Any], result: PairResult) -> None:
-    """The light per-pair payload at ``pair`` = index: name, summary, metrics, errors, series and tracks."""
+def log_summary_pair(rec_stream, index: int, rec: dict[str, Any], result: PairResult, motion: bool = True) -> None:
+    """The light per-pair payload at ``pair`` = index: name, summary, metrics, errors, series (and with
+    ``motion`` the motion tracks)."""
     from fviz.record import layout as L
     from fviz.record.writer import log_pair_text, log_series
 
     rec_stream.set_time(L.TIMELINE, sequence=index)
     log_pair_text(rec_stream, result, _pair_text(rec, result))
-    log_series(rec_stream, result)
+    log_series(rec_stream, result, motion)
 
 
 def run_markdown(config: RunConfig, stats: _Stats) -> str:
@@ -489,7 +490,7 @@ def run_markdown(config: RunConfig, stats: _Stats) -> str:
     ests = list(stats.order) or config.series_names()
     return "\n".join([f"**{config.selection.describe()}**: {stats.pairs} pairs ({stats.pair_errors} failed as a whole).",
                       "", *figures_markdown(standard_figures(stats.per_pair, ests, failures=stats.failed)), "",
-                      "Tabs: **metrics** and **motion** (one series per F over the `pair` timeline), **curves** (share "
+                      "Tabs: **metrics** (errors on log10 axes) and **motion** (one series per F over the `pair` timeline), **curves** (share "
                       "of the pairs below each threshold), and with `--full` the pairs' images. Every figure: summary.md."])
 
 
@@ -534,9 +535,10 @@ def write_recording(path: Path, out_dir: Path, config: RunConfig, summary: str =
     values = series_values(result for _, result, _ in iter_rows(out_dir, config, entries))  # the plots' ranges first
     curves = {key: values.get(L.metric(key), {}) for key, *_ in CURVE_METRICS}  # none before the first pair
     curves = _curves_with_ground_truth(curves, out_dir, config, entries)
-    bp = L.blueprint(names, sizes, single_pair=False, ranges=ranges_of_values(values), curves=True, run_summary=True)
+    ranges = ranges_of_values(values)
+    bp = L.blueprint(names, sizes, single_pair=False, ranges=ranges, curves=True, run_summary=True)
     with RecordingWriter(path, "fviz-eval", bp) as w:
-        log_static(w.rec, names, series=True, legend=sizes is not None)
+        log_static(w.rec, names, series=True, legend=sizes is not None, ranges=ranges)
         log_curves(w.rec, curves, L.estimator_colors(names))
         w.rec.log(L.RUN_SUMMARY, rr.TextDocument(summary or "", media_type="text/markdown"), static=True)
         for rec, result, _ in iter_rows(out_dir, config, entries):

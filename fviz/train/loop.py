@@ -319,20 +319,18 @@ class _Curves:
 
     def snapshot(self) -> None:
         """Make ``path`` a complete recording of everything logged so far (atomic rename)."""
+        from fviz.record.layout import training_blueprint, training_style
         from fviz.record.writer import RecordingWriter
 
         rr = self.rr
         names = [str(i) for i in range(len(self.pairs))]
-        bp = None
-        if self.pairs:
-            from fviz.record.layout import training_blueprint
-
-            bp = training_blueprint(names, [(p.size_a, p.size_b) for p in self.pairs], curves=True)
+        bp = training_blueprint(names, [(p.size_a, p.size_b) for p in self.pairs], curves=True)
         # through fviz's writer: a new file of its own (never a planted link), renamed over path only when
         # complete, and a full disk raises (Rerun's own file sink would stop with a log line and never return)
         with RecordingWriter(self.path, "fviz-train", blueprint=bp, recording_id=self.recording_id) as w:
             rec = w.rec
             for key, (steps, vals) in self.series.items():
+                rec.log(key, rr.SeriesLines(**training_style(key)), static=True)
                 rec.send_columns(key, indexes=[rr.TimeColumn("step", sequence=steps)], columns=rr.Scalars.columns(scalars=vals))
             if self.pairs:
                 from fviz.api import log_training_step
@@ -385,7 +383,7 @@ def validate(model, loader, recipe: Recipe, device: torch.device, amp_dtype: tor
     model.eval()
     gen = torch.Generator().manual_seed(12345)
     loss_sum, n_pairs, f_sum = 0.0, 0, 0.0
-    abs_all, sqr_all, sed_all = [], [], []
+    abs_all, sqr_all, sed_all, targets = [], [], [], []  # targets: (F_t, xa, xb) for the constant's SED
     try:
         for img_a, img_b, F_t in loader:
             img_a, img_b, F_t = img_a.to(device), img_b.to(device), F_t.to(device)
@@ -399,6 +397,7 @@ def validate(model, loader, recipe: Recipe, device: torch.device, amp_dtype: tor
             abs_all.append(m["abs"].flatten().cpu())
             sqr_all.append(m["abs"].square().flatten().cpu())
             sed_all.append(m["sed"].flatten().cpu())
+            targets.append((F_t.double().cpu(), xa.cpu(), xb.cpu()))
             f_sum += float(f_distance_t(F_pred, F_t).sum())
     finally:
         model.train(was_training)
@@ -412,7 +411,23 @@ def validate(model, loader, recipe: Recipe, device: torch.device, amp_dtype: tor
         "epi_sqr": float(torch.cat(sqr_all).mean()),
         "sed_px": float(sed.median()) if sed.numel() else float("nan"),
         "f_dist": f_sum / n_pairs,
+        "constant_sed_px": constant_sed_px(targets),
     }
+
+
+def constant_sed_px(targets: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]]) -> float:
+    """The median SED on the validation points of one constant F, the mean of the pairs' targets (unit Frobenius,
+    signs aligned, rank 2): what a network that ignores the images reaches; its line on train.rrd's plot of
+    ``sed_px``. ``targets``: per batch (F_t (B, 3, 3), xa, xb (B, n, 3))."""
+    F_t = torch.cat([t[0] for t in targets]).flatten(1)
+    F_t = F_t / F_t.norm(dim=1, keepdim=True).clamp_min(1e-300)
+    F_t = F_t * torch.where(F_t @ F_t[0] < 0, -1.0, 1.0)[:, None].to(F_t)
+    U, S, Vh = torch.linalg.svd(F_t.mean(0).reshape(3, 3))
+    F_c = U @ torch.diag(torch.stack([S[0], S[1], torch.zeros_like(S[2])])) @ Vh
+    sed = torch.cat([epipolar_metrics(F_c.expand(len(xa), 3, 3), xa.double(), xb.double())["sed"].flatten()
+                     for _, xa, xb in targets])
+    sed = sed[torch.isfinite(sed)]
+    return float(sed.median()) if sed.numel() else float("nan")
 
 
 def train(
