@@ -475,11 +475,15 @@ def _pair_text(rec: dict[str, Any], result: PairResult) -> str:
 
 
 def log_summary_pair(rec_stream, index: int, rec: dict[str, Any], result: PairResult) -> None:
-    """The light per-pair payload at ``pair`` = index: name, summary, metrics, errors, series and tracks."""
+    """The light per-pair payload at ``pair`` = index: verdict, name, summary, metrics, errors, series and tracks."""
+    import rerun as rr
+
     from fviz.record import layout as L
     from fviz.record.writer import log_pair_text, log_series
+    from fviz.verdicts import pair_verdict
 
     rec_stream.set_time(L.TIMELINE, sequence=index)
+    rec_stream.log(L.VERDICT, rr.TextDocument(pair_verdict(rec).markdown(), media_type="text/markdown"))
     log_pair_text(rec_stream, result, _pair_text(rec, result))
     log_series(rec_stream, result)
 
@@ -534,7 +538,8 @@ def write_recording(path: Path, out_dir: Path, config: RunConfig, summary: str =
     values = series_values(result for _, result, _ in iter_rows(out_dir, config, entries))  # the plots' ranges first
     curves = {key: values.get(L.metric(key), {}) for key, *_ in CURVE_METRICS}  # none before the first pair
     curves = _curves_with_ground_truth(curves, out_dir, config, entries)
-    bp = L.blueprint(names, sizes, single_pair=False, ranges=ranges_of_values(values), curves=True, run_summary=True)
+    bp = L.blueprint(names, sizes, single_pair=False, ranges=ranges_of_values(values), curves=True, run_summary=True,
+                     verdict=sizes is not None)
     with RecordingWriter(path, "fviz-eval", bp) as w:
         log_static(w.rec, names, series=True, legend=sizes is not None)
         log_curves(w.rec, curves, L.estimator_colors(names))
