@@ -84,10 +84,11 @@ def test_tabs_overview_one_per_estimator_and_probe(inspected):
 
 def test_recording_stays_small(inspected):
     """Issue "The main screen": an inspect recording with three estimators <= 250 KB (match positions stored
-    once, no footer, JPEG 50). Deterministic: the same data and code write the same bytes, give or take the
-    JPEG encoder's version."""
+    once, no footer, JPEG 50), plus the verdict above the tabs (issue "Screens round two": its view and container
+    cost ~5 KB of blueprint; 253 KB on this pair). Deterministic: the same data and code write the same bytes,
+    give or take the JPEG encoder's version."""
     path, _ = inspected
-    assert path.stat().st_size <= 250_000, path.stat().st_size
+    assert path.stat().st_size <= 256_000, path.stat().st_size
     assert L.END in R.entity_paths(path) and not any(L.matches(e) in R.entity_paths(path) for e in ESTIMATORS)
 
 
