@@ -110,7 +110,7 @@ def failure(row: dict) -> str:
     """Why an estimate (a result row: ``name``, ``error``, ``metrics``) fails its pair, "" when it does not: it
     failed (no F), or its pose error is above POSE_FAIL_DEG, or its median SED above 2 px or undefined."""
     if row.get("error"):
-        return f"failed: {str(row['error']).splitlines()[0][:80]}"
+        return f"gave no F: {str(row['error']).splitlines()[0][:80]}"
     m = row.get("metrics") or {}
     pose, sed = _num(m.get("pose_err_deg")), _num(m.get("sed_median"))
     why = []
