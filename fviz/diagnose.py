@@ -245,8 +245,8 @@ def _margins(diag: dict[str, Any]) -> tuple[float, float]:
 
 
 def gt_suspect(diag: dict[str, Any] | None, estimators: list[dict[str, Any]]) -> dict[str, str] | None:
-    """Whether the pair's ground truth looks wrong: {"why": ..., "reference": the estimator to trust instead}
-    or None. ``diag``: :func:`diagnose`'s evidence; ``estimators``: the pair's rows ({name, error, metrics},
+    """Whether the pair's ground truth looks wrong: {"why": ..., "short": the same in a few words (a pair's verdict,
+    fviz.verdicts), "reference": the estimator to trust instead} or None. ``diag``: :func:`diagnose`'s evidence; ``estimators``: the pair's rows ({name, error, metrics},
     as in results.jsonl and ``inspect --json``).
 
     The ground truth is suspect only when it explains the matches worse than the estimates do: on an estimate's
@@ -287,14 +287,15 @@ def gt_suspect(diag: dict[str, Any] | None, estimators: list[dict[str, Any]]) ->
 
     margin, direction_margin = _margins(diag)
     acc = _num(diag.get("gt_accuracy_px"))
-    stated = f"ground truth good to ~{acc:g} px" if np.isfinite(acc) else "ground truth of unstated accuracy"
+    stated = f"ground truth good to ~{acc:.2g} px" if np.isfinite(acc) else "ground truth of unstated accuracy"
     ref = max(consensus, key=lambda n: (m[n]["n_inliers"], -m[n]["sed_median"]))
     if worse(ref, margin):
         gt, own = residuals(ref)
         agree = _num(evidence[ref].get("gt_agree"))
-        return {"reference": ref, "why": f"{ref}'s inliers ({m[ref]['inlier_ratio']:.0%} of the matches, the "
+        short = f"{ref}'s inliers ({m[ref]['inlier_ratio']:.0%}) sit {gt:.3g} px off F_gt's lines, {own:.2g} px off its own"
+        return {"reference": ref, "short": short, "why": f"{ref}'s inliers ({m[ref]['inlier_ratio']:.0%} of the matches, the "
                 f"largest consensus) sit off F_gt: median {gt:.2f} px from its lines against {own:.2f} px from "
-                f"{ref}'s, {agree:.0%} within {EVAL_THRESHOLD_PX:g} px (margin {margin:g} px: {stated})"}
+                f"{ref}'s, {agree:.0%} within {EVAL_THRESHOLD_PX:g} px (margin {margin:.2g} px: {stated})"}
     tight = [n for n in consensus if m[n]["sed_median"] < GT_SUSPECT_FIT_PX]
     far = _num(diag.get("gt_epipole_distance"))
     if not tight or ill_conditioned(diag, evidence[ref]) or far > GT_SUSPECT_EPIPOLE_NEAR:  # NaN (older runs): judged
@@ -302,11 +303,14 @@ def gt_suspect(diag: dict[str, Any] | None, estimators: list[dict[str, Any]]) ->
     if all((m[n]["epipole_err_deg"] > GT_SUSPECT_DIRECTION_DEG or m[n]["rot_err_deg"] > GT_SUSPECT_ROTATION_DEG)
            and worse(n, direction_margin) for n in tight):
         best = max(tight, key=lambda n: m[n]["n_inliers"])
-        return {"reference": best, "why": "every tight fit disagrees with the ground truth and fits the matches "
+        return {"reference": best, "short": "every tight fit's epipole or rotation is off F_gt's (" + ", ".join(
+                    f"{n}: epipole {m[n]['epipole_err_deg']:.1f} deg, rotation {m[n]['rot_err_deg']:.2f} deg" for n in tight)
+                + f") and fits its inliers better (margin {direction_margin:.2g} px)",
+                "why": "every tight fit disagrees with the ground truth and fits the matches "
                 "better: " + "; ".join(f"{n} epipole {m[n]['epipole_err_deg']:.1f} deg, rotation "
                                        f"{m[n]['rot_err_deg']:.2f} deg off, its inliers {residuals(n)[0]:.2f} px from "
                                        f"F_gt's lines against {residuals(n)[1]:.2f} px from its own" for n in tight)
-                + f" (margin {direction_margin:g} px: {stated})"}
+                + f" (margin {direction_margin:.2g} px: {stated})"}
     return None
 
 

@@ -77,7 +77,8 @@ from typing import Any
 import numpy as np
 
 from fviz.atomic import write_text
-from fviz.verdicts import FAIL_RULES, HIGHER_IS_BETTER, LOW_INLIER_RATIO  # noqa: F401 (HIGHER_IS_BETTER: re-exported)
+from fviz.verdicts import (DEGENERATE_FRACTION, FAIL_RULES, HIGHER_IS_BETTER, LOW_INLIER_RATIO,  # noqa: F401 (re-exported)
+                           MATCHER_MIN_CORRECT, MATCHER_MIN_PRECISION, blame, blamed, fail_phrase, failure, pair_verdict)
 from fviz.diagnose import (GT_SUSPECT_DIRECTION_DEG, GT_SUSPECT_DIRECTION_MARGIN_PX, GT_SUSPECT_EPIPOLE_NEAR,
                             GT_SUSPECT_FIT_PX, GT_SUSPECT_INLIER_RATIO, GT_SUSPECT_MARGIN_PX, GT_SUSPECT_RATIO,
                             GT_SUSPECT_ROTATION_DEG, HOMOGRAPHY_PX, PLANAR_FRACTION, ROTATION_FRACTION, ROTATION_PX,
@@ -88,7 +89,6 @@ from fviz.evaluate import EVAL_THRESHOLD_PX, GT_NAME
 from fviz.record import layout as L
 
 FEW_MATCHES = 50
-DEGENERATE_FRACTION = 0.9
 IGNORES_FRACTION = 0.1
 IGNORES_MIN_PAIRS = 5
 IGNORES_CONFIDENCE, IGNORES_BOOTSTRAP = 0.95, 200  # the tracking slope's interval (paired bootstrap over the pairs)
@@ -96,8 +96,6 @@ MIN_GT_SPREAD_DEG = 0.01  # a quantity the ground truth varies less than this is
 
 FAIL_POSE_DEG = FAIL_RULES["pose_err_deg"].threshold  # one vocabulary of "fails" (fviz.verdicts)
 FAIL_SED_PX = FAIL_RULES["sed_median"].threshold
-MATCHER_MIN_PRECISION = 0.5
-MATCHER_MIN_CORRECT = 20
 FOCAL_OFF = 2.0
 COLMAP_TAGGED = ("planar", "panoramic", "planar_or_panoramic", "watermark", "degenerate")
 
@@ -150,26 +148,18 @@ def tag_pair(rec: dict[str, Any], by: str) -> list[tuple[str, str]]:
         out.append(("degenerate", f"{static:.0%} of the matches move < {STATIC_PX:g} px (identical images?): any F "
                     "through the points fits, residuals and inlier counts mean nothing"))
     suspect = any(t == "gt-suspect" for t, _ in out)  # judged against doubtful labels, neither is to blame
-    return out + ([] if suspect else blame_tags(rec, by, metrics)) + two_view_tags(rec, by)
+    return out + ([] if suspect else blame_tags(rec, by)) + two_view_tags(rec, by)
 
 
-def blame_tags(rec: dict[str, Any], by: str, metrics: dict[str, Any]) -> list[tuple[str, str]]:
-    """``matcher`` or ``estimator`` for a pair ``by`` failed on (see the module doc)."""
+def blame_tags(rec: dict[str, Any], by: str) -> list[tuple[str, str]]:
+    """``matcher`` or ``estimator`` for a pair ``by`` fails on (see the module doc; the rule: fviz.verdicts.blame)."""
     res = rec.get("result") or {}
     prec, e = res.get("match_precision") or {}, next((e for e in res.get("estimators", []) if e["name"] == by), None)
-    if not prec or e is None:
+    why = failure(e) if prec and e is not None else ""
+    if not why:
         return []
-    pose, sed = _nan_if_none(metrics.get("pose_err_deg")), _nan_if_none(metrics.get("sed_median"))
-    if not (e["error"] or pose > FAIL_POSE_DEG or sed > FAIL_SED_PX or not math.isfinite(sed)):
-        return []
-    p1, p2 = _nan_if_none(prec.get("px_prec@1")), _nan_if_none(prec.get("px_prec@2"))
-    correct = p1 * res.get("n_matches", 0)
-    failure = e["error"] or f"pose error {pose:.3g} deg, median SED {sed:.3g} px"
-    if p2 < MATCHER_MIN_PRECISION or correct < MATCHER_MIN_CORRECT:
-        return [("matcher", f"{by} failed ({failure}) but only {p2:.0%} of the matches are within 2 px of F_gt "
-                 f"({correct:.0f} within 1 px): the matcher gave it little to find")]
-    return [("estimator", f"{by} failed ({failure}) although {p2:.0%} of the matches are within 2 px of F_gt "
-             f"({correct:.0f} within 1 px): the robust estimation, not the matcher")]
+    kind, numbers = blame(prec, res.get("n_matches", 0))
+    return [(kind, blamed(fail_phrase([(by, why)]), kind, numbers))]
 
 
 def two_view_tags(rec: dict[str, Any], by: str) -> list[tuple[str, str]]:
@@ -480,11 +470,12 @@ def triage_markdown(config, ranked: list[Ranked], top: int, by: str, metric: str
     return "\n".join(lines) + "\n"
 
 
-def rank_banner(r: Ranked, by: str, metric: str) -> str:
-    """The head of a rank in triage.rrd: "rank 0: sed_median of 8point 3.34 px", then its tags."""
+def rank_banner(r: Ranked, by: str, metric: str, rec: dict[str, Any]) -> str:
+    """The head of a rank in triage.rrd: the pair's verdict judged on ``by`` (its record ``rec``: fviz.verdicts), one
+    line first, so that the banner's height never hides it; then "rank 0: sed_median of 8point 3.34 px" and the tags."""
     value = "failed" if r.failed else f"{r.value:.3g}{(' ' + L.metric_unit(metric)) if L.metric_unit(metric) else ''}"
-    return "\n".join([f"**rank {r.rank}: {metric} of {by} {value}** (`{r.key}`, pair #{r.index}; ArrowRight: next "
-                      "worse-ranked pair)", ""] + [f"- **{t}**: {why}" for t, why in r.tags])
+    return "\n".join([pair_verdict(rec, by).markdown(), "", f"**rank {r.rank}: {metric} of {by} {value}** (`{r.key}`, pair "
+                      f"#{r.index}; ArrowRight: next worse-ranked pair)", ""] + [f"- **{t}**: {why}" for t, why in r.tags])
 
 
 def write_triage_recording(path: Path, config, out_dir: Path, shown: list[Ranked], records: dict[int, dict],
@@ -515,11 +506,11 @@ def write_triage_recording(path: Path, config, out_dir: Path, shown: list[Ranked
                 add_two_view(r, rec, pair, result, by)
                 if (note := gt_suspect_note(pair, result)) is not None:
                     result.notes.insert(0, note)
-                log_pair(w.rec, r.index, pair, result, single_pair=False, clear_reference=True, motion=False)
+                log_pair(w.rec, r.index, pair, result, single_pair=False, clear_reference=True, motion=False, by=by)
             except Exception:  # the pair failed in eval too: its record says why
                 log_summary_pair(w.rec, r.index, rec, result_from_record(rec, config), motion=False)
                 w.rec.log(L.REFERENCE, rr.LineStrips2D([]))  # no reference lines left from the rank before
-            w.rec.log(TAGS_ENTITY, rr.TextDocument(rank_banner(r, by, metric), media_type="text/markdown"))
+            w.rec.log(TAGS_ENTITY, rr.TextDocument(rank_banner(r, by, metric, rec), media_type="text/markdown"))
             w.pair_done()
     return path
 

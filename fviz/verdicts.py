@@ -14,7 +14,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from fviz.evaluate import EVAL_THRESHOLD_PX
+import numpy as np
+
+from fviz.evaluate import EVAL_THRESHOLD_PX, GT_NAME
 from fviz.geometry import NSGD_RECALL_THRESHOLD
 
 
@@ -71,3 +73,145 @@ def fails_label(metric: str, threshold: float | None = None) -> str:
         return "no value"
     unit = f" {rule.unit}" if rule.unit else ""
     return f"{metric} {'<' if rule.higher_is_better else '>'} {rule.threshold:g}{unit}"
+
+
+# ---------------------------------------------------------------------------------------------- one pair's verdict
+# What went wrong on a pair, in one line with the number behind it: the head of every pair view (inspect, eval
+# --full, triage's banner) and inspect's output. Its words are triage's tags (fviz.triage), judged by the same rules.
+
+PAIR_FAILED, NO_EVAL, DEGENERATE, GT_SUSPECT = "pair failed", "no evaluation matches", "degenerate", "ground truth suspect"
+MATCHER, ESTIMATOR, FAILS, NO_GT, NO_FAILURE = "matcher", "estimator", "fails", "no ground truth", "no failure"
+VERDICTS = (PAIR_FAILED, NO_EVAL, DEGENERATE, GT_SUSPECT, MATCHER, ESTIMATOR, FAILS, NO_GT, NO_FAILURE)  # first applies
+DEGENERATE_FRACTION = 0.9  # degenerate: this share of the matches move less than diagnose.STATIC_PX
+MATCHER_MIN_PRECISION = 0.5  # the matcher is to blame for a failing estimate when fewer than this share of the
+MATCHER_MIN_CORRECT = 20  # matches lie within 2 px of F_gt, or fewer than this many within 1 px (match_precision)
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """A pair's verdict: ``kind`` (one of VERDICTS) and ``text``, the evidence with its numbers."""
+
+    kind: str
+    text: str
+
+    @property
+    def line(self) -> str:
+        return f"{self.kind}: {self.text}"
+
+    def markdown(self) -> str:
+        return f"**{self.kind}**: {self.text}"
+
+
+def _num(v) -> float:
+    return float("nan") if v is None else float(v)
+
+
+def failure(row: dict) -> str:
+    """Why an estimate (a result row: ``name``, ``error``, ``metrics``) fails its pair, "" when it does not: it
+    failed (no F), or its pose error is above POSE_FAIL_DEG, or its median SED above 2 px or undefined."""
+    if row.get("error"):
+        return f"gave no F: {str(row['error']).splitlines()[0][:80]}"
+    m = row.get("metrics") or {}
+    pose, sed = _num(m.get("pose_err_deg")), _num(m.get("sed_median"))
+    why = []
+    if math.isfinite(pose) and FAIL_RULES["pose_err_deg"].fails(pose):  # unknown (no pose): not judged
+        why.append(f"pose error {pose:.3g} deg")
+    if FAIL_RULES["sed_median"].fails(sed):
+        why.append(f"median SED {sed:.3g} px" if math.isfinite(sed) else "no median SED")
+    return ", ".join(why)
+
+
+def blame(precision: dict, n_matches: int) -> tuple[str, str]:
+    """Whose fault a failing estimate is, from the matches' precision (``match_precision``, before any estimator):
+    (MATCHER or ESTIMATOR, the number that decides: "12% of the 300 matches lie within 2 px of F_gt")."""
+    p1, p2 = _num(precision.get("px_prec@1")), _num(precision.get("px_prec@2"))
+    correct = p1 * n_matches
+    share = f"{p2:.0%} of the {n_matches} matches lie within 2 px of F_gt"
+    if not p2 >= MATCHER_MIN_PRECISION:
+        return MATCHER, share
+    if not correct >= MATCHER_MIN_CORRECT:
+        return MATCHER, f"{correct:.0f} of the {n_matches} matches lie within 1 px of F_gt"
+    return ESTIMATOR, share
+
+
+def blamed(who: str, kind: str, numbers: str) -> str:
+    """``who`` (what fails) and whose fault it is: "8point fails (...) although 90% of ...: not the matcher"."""
+    return f"{who} but only {numbers}: the matcher's fault" if kind == MATCHER else f"{who} although {numbers}: not the matcher"
+
+
+def fail_phrase(failing: list[tuple[str, str]]) -> str:
+    """"8point fails (pose error 75 deg)", "8point (...) and ransac (...) fail"."""
+    if len(failing) == 1:
+        return f"{failing[0][0]} fails ({failing[0][1]})"
+    return ", ".join(f"{n} ({why})" for n, why in failing[:-1]) + f" and {failing[-1][0]} ({failing[-1][1]}) fail"
+
+
+def pair_verdict(rec: dict, by: str | None = None) -> Verdict:
+    """The verdict of one pair (a results.jsonl record: ``error``, ``result``, ``diagnostics``), the first of
+    VERDICTS that applies: the pair failed; none of its matches is an evaluation match; its matches do not move
+    (``degenerate``); its ground truth is suspect (:func:`fviz.diagnose.gt_suspect`); an estimate fails
+    (:func:`failure`) and the matches' precision says whose fault (``matcher`` / ``estimator``; ``fails`` where
+    the precision is unknown); no ground truth (how far the estimates agree); no failure. ``by``: judge that
+    estimator alone (triage's ranked one); default every estimator but the baselines."""
+    from fviz.diagnose import STATIC_PX, gt_suspect
+    from fviz.estimators.registry import is_baseline
+
+    res = rec.get("result")
+    if rec.get("error") or not res:
+        return Verdict(PAIR_FAILED, str(rec.get("error") or "no result").splitlines()[0][:160])
+    diag, rows, n = rec.get("diagnostics") or {}, res["estimators"], res["n_matches"]
+    ests = [e for e in rows if e["name"] != GT_NAME]
+    judged = [e for e in ests if e["name"] == by] if by else [e for e in ests if not is_baseline(e["name"])] or ests
+    if res.get("F_gt") is None:  # only an error fails an estimate (its residuals are over every match)
+        failed = [f"; {e['name']} {failure(e)}" for e in judged if e.get("error")]
+        v = _agreement_verdict(res, [e["name"] for e in judged if not e.get("error")])
+        return Verdict(v.kind, v.text + "".join(failed))
+    suspect = gt_suspect(diag, rows)
+    if res["n_eval"] == 0:
+        why = f"ground truth suspect: {suspect['short']}" if suspect else "the matcher or the ground truth is wrong"
+        return Verdict(NO_EVAL, f"0 of {n} matches within {res['eval_threshold_px']:g} px of F_gt's lines: no metric; {why}")
+    static = _num(diag.get("static_fraction"))
+    if static >= DEGENERATE_FRACTION:
+        return Verdict(DEGENERATE, f"{static:.0%} of the {n} matches move < {STATIC_PX:g} px: any F through the points "
+                       "fits them, residuals and inliers mean nothing")
+    if suspect:
+        return Verdict(GT_SUSPECT, f"{suspect['short']}: trust {suspect['reference']}'s F, not the metrics")
+    judgements = [(e["name"], failure(e)) for e in judged]
+    failing, fine = [(name, why) for name, why in judgements if why], [name for name, why in judgements if not why]
+    if failing:
+        who = fail_phrase(failing)
+        also = f"; {', '.join(fine)} fine" if fine else ""
+        if not res.get("match_precision"):
+            return Verdict(FAILS, f"{who}; whose fault is unknown (no pose: no match precision){also}")
+        kind, numbers = blame(res["match_precision"], n)
+        return Verdict(kind, blamed(who, kind, numbers) + also)
+    best = min(judged, key=lambda e: _num(e["metrics"].get("sed_median")), default=None)
+    sed = _num(best["metrics"].get("sed_median")) if best else float("nan")
+    return Verdict(NO_FAILURE, f"{', '.join(e['name'] for e in judged) or 'no estimator'} within median SED "
+                   f"{FAIL_RULES['sed_median'].threshold:g} px and pose error {POSE_FAIL_DEG:g} deg"
+                   + (f" (best: {best['name']}, median SED {sed:.3g} px)" if best else ""))
+
+
+def _agreement_verdict(res: dict, names: list[str]) -> Verdict:
+    """Without ground truth: the two estimates closest to each other (NSGD) and whether they agree."""
+    agreement = res.get("agreement") or {}
+    order = list(agreement.get("names", []))
+    m = np.array(agreement.get("matrix") or np.zeros((0, 0)), float)
+    idx = [order.index(n) for n in names if n in order]
+    if len(idx) < 2:
+        return Verdict(NO_GT, "fewer than two estimates to compare with each other")
+    rule = FAIL_RULES["agreement_nsgd"]
+    d, i, j = min((m[i, j], i, j) for k, i in enumerate(idx) for j in idx[k + 1:])
+    others = [(max(m[k, i], m[k, j]), order[k]) for k in idx if k not in (i, j)]
+    far = f"; farthest from them {max(others)[1]} (NSGD {max(others)[0]:.2g})" if others else ""
+    return Verdict(NO_GT, f"{order[i]} and {order[j]} {'agree' if not rule.fails(d) else 'disagree'} (NSGD {d:.2g} "
+                   f"{'<' if not rule.fails(d) else '>'} {rule.threshold:g}){far}; the metrics compare the estimates only")
+
+
+def verdict_of(pair, result, by: str | None = None) -> Verdict:
+    """:func:`pair_verdict` of an evaluated pair (:class:`fviz.evaluate.PairResult`), its evidence computed here."""
+    from fviz.diagnose import diagnose
+
+    ok = result.matches is not None and result.eval_mask is not None
+    return pair_verdict({"error": None, "result": result.to_dict(),
+                         "diagnostics": diagnose(pair, result, two_view=False) if ok else None}, by)

@@ -118,6 +118,9 @@ def test_gt_suspect_is_the_pairs_whatever_by_and_inspect_says_the_same(temporal,
         said = [n for n in notes if n.startswith("gt-suspect: ")]
         assert bool(said) == verdicts[0][rec["key"]], (rec["key"], notes)
         assert ("ground truth suspect" in text(rrd, L.SUMMARY)[0]) == bool(said)
+        verdict = json.loads(r.stdout)["verdict"]  # the line above the recording's tabs says it first
+        assert (verdict["kind"] == "ground truth suspect") == bool(said), verdict
+        assert text(rrd, L.VERDICT) == [f"**{verdict['kind']}**: {verdict['text']}"]
         titles = [v["display_name"][0] for v in _blueprint_fields(open_rrd(rrd)).values() if "display_name" in v]
         assert any(t.startswith("GROUND TRUTH SUSPECT") for t in titles) == bool(said)  # the overview's title
         assert all(f"note: {n}" in r.stderr for n in said)
@@ -164,7 +167,15 @@ def test_triage_recording_steps_through_the_worst_pairs_first(temporal):
     assert _blueprint_fields(open_rrd(out / TRIAGE_RRD))["time_panel"]["timeline"] == ["rank"]
 
     banners = column(out / TRIAGE_RRD, L.TRIAGE_TAGS, "TextDocument:text")
-    assert [b[0].split("\n")[0].split("**")[1] for b in banners] == [f"rank {r.rank}: sed_median of magsac {r.value:.3g} px" for r in ranked]
+    assert [b[0].split("\n")[2].split("**")[1] for b in banners] == [f"rank {r.rank}: sed_median of magsac {r.value:.3g} px" for r in ranked]
+    # its first line: the pair's verdict, judged on magsac as its tags are (the same words: matcher, estimator, ...)
+    from fviz.verdicts import VERDICTS, pair_verdict
+
+    records = {rec["index"]: rec for rec in jsonl(out / "results.jsonl")}
+    firsts = [b[0].split("\n")[0] for b in banners]
+    assert firsts == [pair_verdict(records[r.index], "magsac").markdown() for r in ranked]
+    assert all(f.split("**")[1] in VERDICTS for f in firsts)
+    assert [f.startswith("**ground truth suspect**") for f in firsts] == [any(t == "gt-suspect" for t, _ in r.tags) for r in ranked]
 
 
 def test_oracle_mean_is_exact_on_raw_stereo_pairs_and_flagged(kitti_root, raw_drive, tmp_path):

@@ -147,6 +147,48 @@ class Shot:
         return int((hit & mask).sum() if mask is not None else hit.sum())
 
 
+SEPARATOR = (53, 52, 52)  # Rerun's panel borders (dark theme): full-width rows between views stacked vertically
+
+
+def text_lines(rgb: np.ndarray, box: tuple[int, int, int, int]) -> list[tuple[int, int, int, int]]:
+    """Lines of light text (Rerun's, on its dark panels) inside ``box`` (x, y, w, h): bands of rows holding light
+    pixels, as (top row, bottom row, left, right) in screen coordinates."""
+    x, y, w, h = box
+    light = rgb[y: y + h, x: x + w].min(-1) > 140
+    rows = np.flatnonzero(light.any(axis=1))
+    bands = np.split(rows, np.flatnonzero(np.diff(rows) > 1) + 1) if len(rows) else []
+    out = []
+    for band in bands:
+        cols = np.flatnonzero(light[band].any(axis=0))
+        out.append((y + int(band[0]), y + int(band[-1]), x + int(cols[0]), x + int(cols[-1])))
+    return out
+
+
+def top_view_lines(rgb: np.ndarray) -> tuple[list[tuple[int, int, int, int]], int]:
+    """The view at the top of the screen (between the first two full-width panel borders below Rerun's menu bar):
+    its lines of text below its title (see :func:`text_lines`), and the row of the view's bottom border."""
+    borders = np.flatnonzero(near(rgb, SEPARATOR, 8).mean(axis=1) > 0.9)
+    top = int(borders[0])
+    bottom = int(next(b for b in borders if b > top + 1))
+    return text_lines(rgb, (0, top + 1, rgb.shape[1], bottom - top - 1))[1:], bottom  # [0]: its title and icons
+
+
+def assert_verdict_line_inside(shot: "Shot", markdown, only: bool = True) -> None:
+    """A verdict (its Markdown, ``**kind**: text``; or a list: any of them) is the first line of text of the view at
+    the top, fully inside it: blank rows between it and the view's bottom border, short of the right edge, and as
+    wide as its characters make it (5-7.5 px each in the viewer's font); ``only``: the view holds that one line."""
+    texts = [m.replace("**", "") for m in ([markdown] if isinstance(markdown, str) else markdown)]
+    lines, bottom = top_view_lines(shot.rgb)
+    print(f"top view: lines {lines}, bottom border at row {bottom}; verdicts {texts}")
+    assert lines, f"no text in the view at the top; {shot.context}"
+    y0, y1, x0, x1 = lines[0]
+    assert y1 <= bottom - 3, f"the verdict line (rows {y0}-{y1}) is cut by the view's border at {bottom}; {shot.context}"
+    assert x1 <= shot.rgb.shape[1] - 10, f"the verdict line runs to the right edge ({x1}); {shot.context}"
+    assert any(5.0 <= (x1 - x0) / len(t) <= 7.5 for t in texts), \
+        f"the first line ({x1 - x0} px) is not a verdict ({[len(t) for t in texts]} chars); {shot.context}"
+    assert not only or len(lines) == 1, f"the verdict is not one line: {lines}; {shot.context}"
+
+
 def residual_sides(crop: np.ndarray, drawn: np.ndarray, tol: float = 20.0) -> tuple[int, int]:
     """Overlay pixels of the keypoints' residual scale, as (near the line: bins 0-1, mid-way: bins 3-6) by the
     nearest bin colour within ``tol``."""
@@ -195,7 +237,10 @@ def pair_frames(odometry):
 
 
 def test_overview_shows_both_frames_the_ground_truth_and_the_comparison(inspected, pair_frames, tmp_path):
+    from fviz.record.reader import text
+
     shot = Shot(inspected, tmp_path / "overview.png")
+    assert_verdict_line_inside(shot, text(inspected, L.VERDICT)[0])  # above the tabs: "estimator: 8point fails ..."
     boxes = shot.frames(pair_frames, (0.0, 0.72))
     white, crops = {}, {}
     for v, box in boxes.items():
@@ -328,6 +373,10 @@ def test_triage_opens_on_rank_worst_first(deep_run, tmp_path):
     assert r.returncode == 0, r.stderr
     assert "motion" not in blueprint_tabs(deep_run / "triage.rrd")
     shot = Shot(deep_run / "triage.rrd", tmp_path / "triage.png", "--tab", "metrics")
+    from fviz.record.reader import text
+
+    banners = text(deep_run / "triage.rrd", L.TRIAGE_TAGS)  # each opens with its pair's verdict, never cut by its height
+    assert_verdict_line_inside(shot, [b.split("\n")[0] for b in banners], only=False)
     box = min(plot_boxes(shot.rgb), key=lambda b: b[0] + b[1])  # the top-left plot: median SED
     dots = [b for b in blobs(shot.rgb, box, COLORS["8point"]) if b[2] < 400]  # a marker, not a title or a line
     xs, ys = np.array([(bx, by) for bx, by, _ in dots]).T if dots else (np.zeros(0), np.zeros(0))

@@ -95,13 +95,17 @@ def pair(
                               threshold=threshold, confidence=confidence, max_iters=max_iters, seed=seed, norm=norm,
                               eval_threshold=eval_threshold, timeout=estimator_timeout)
     path = api.save_recording(out or default_out(p.id.name), p, result, lines=lines, probe=probe, probe_by=probe_by)
+    from fviz.verdicts import verdict_of
+
+    verdict = verdict_of(p, result)
     doc = result.to_dict()
     doc["recording"] = str(path)
+    doc["verdict"] = {"kind": verdict.kind, "text": verdict.text}
     if as_json:
         json.dump(doc, sys.stdout, indent=2)
         sys.stdout.write("\n")
     else:
-        _print_table(result, path)
+        _print_table(result, path, verdict.line)
     for note in result.notes:
         print(f"note: {note}", file=sys.stderr)
     for line in result.errors:
@@ -148,7 +152,7 @@ TABLE_CAPTION = ("SED / Sampson px: medians over the evaluation matches; rot / t
                  "share of all matches; time s: the estimator's run time. Every metric: --json.")
 
 
-def _print_table(result, path: Path) -> None:
+def _print_table(result, path: Path, verdict: str) -> None:
     from rich.console import Console
     from rich.table import Table
 
@@ -173,6 +177,7 @@ def _print_table(result, path: Path) -> None:
 
     for line in precision_lines(result.match_precision)[1:]:
         console.print(line)
+    console.print(f"verdict: {verdict}", markup=False)
     console.print(f"recording: {path}")
 
 

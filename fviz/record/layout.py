@@ -49,6 +49,9 @@ Entity paths (``{v}`` is the view, ``a`` or ``b``; ``{e}`` an estimator name, ``
     click/text                  TextDocument (Markdown): the click, its match and the residuals
     summary                     TextDocument (Markdown): pair, compact metrics table, F matrices below
     pair/info                   TextDocument: the pair's name (what ``fviz summary`` lists)
+    pair/verdict                TextDocument (Markdown): the pair's verdict in one line (:func:`fviz.verdicts.pair_verdict`:
+                                matcher, estimator, ground truth suspect, no evaluation matches, ...) with the number
+                                behind it, shown above the tabs of every pair view (triage: its banner's first line)
 
 Training (``fviz train``'s train.rrd, :func:`fviz.log_training_step`; ``{k}`` names a watched validation pair):
 
@@ -74,7 +77,8 @@ truth's residuals and lines, every F's epipole, the comparison chart and the sum
 estimator** named after it (image a above image b with only that estimator's keypoints, lines and epipole,
 and the ground truth's lines in white), then **probe** (inspect); runs of many pairs add **metrics** (errors on log10 axes; over
 ``pair``, or as points over triage's ``rank``) and, over ``pair``, **motion**, and open on them when the recording
-holds no images.
+holds no images. Above the tabs of a recording with images: the pair's verdict, one line (triage: its banner, the
+verdict first).
 ``fviz open FILE --tab NAME`` rebuilds this blueprint from the file (:func:`fviz.record.reader.recording_blueprint`)
 with another tab active.
 """
@@ -176,6 +180,7 @@ def annotation_context():
 
 SUMMARY = "summary"
 PAIR_INFO = "pair/info"
+VERDICT = "pair/verdict"
 PAIR_METRICS = "pair/metrics"
 COMPARE = "compare"
 PROBE_TEXT = "probe/text"
@@ -285,7 +290,8 @@ MOTION_TRACKS = (
 
 
 GAP_PX = 24  # between image a and image b (below it)
-FOOTER_PX = 64  # below image b: the estimator's numbers and the residual scale (and room above the time panel)
+FOOTER_PX = 84  # below image b: the estimator's numbers and the residual scale, its labels (drawn below their points:
+# ~24 screen px) inside the view when its height limits the zoom (the verdict above the tabs takes ~60 px)
 
 
 def image(view: str) -> str:
@@ -490,9 +496,12 @@ def curves_tab(n_series: int):
     return rrb.Spatial2DView(origin=CURVES, name="curves", background=CHART_BACKGROUND, visual_bounds=bounds)
 
 
+VERDICT_SHARE = 13  # the tabs' height below the verdict's (1)
+
+
 def blueprint(names: Sequence[str], sizes: tuple[tuple[int, int], tuple[int, int]] | None, single_pair: bool, head: bool = False,
               active: str | None = None, classes: dict[str, np.ndarray] | None = None, ranges: dict | None = None,
-              curves: bool = False, run_summary: bool = False, notice: str = ""):
+              curves: bool = False, run_summary: bool = False, notice: str = "", verdict: bool = False):
     """The stored layout. ``names``: the F's (``gt`` among them or not); ``sizes``: (w, h) of image a and b,
     None when the recording holds no images (eval without --full); ``single_pair``: inspect (comparison
     bars and the probe) rather than a run (metric series and motion tracks over the pair timeline);
@@ -500,7 +509,8 @@ def blueprint(names: Sequence[str], sizes: tuple[tuple[int, int], tuple[int, int
     opens on (default the first); ``classes``: (one pair) each estimator's keypoint classes, see
     :func:`estimator_tab`; runs: ``ranges`` the plots' y ranges ({path: :func:`series_range`}), ``curves`` a
     tab of cumulative error curves, ``run_summary`` a summary tab with the run's figures; ``notice``: a
-    warning put in the overview's title (a suspect ground truth)."""
+    warning put in the overview's title (a suspect ground truth); ``verdict``: the pair's verdict (``VERDICT``) above
+    the tabs (with ``head`` the banner opens with it instead)."""
     import rerun.blueprint as rrb
 
     ests = [n for n in names if n != GT]
@@ -525,6 +535,8 @@ def blueprint(names: Sequence[str], sizes: tuple[tuple[int, int], tuple[int, int
     root = rrb.Tabs(*tabs, active_tab=titles.index(active) if active else 0)
     if head:
         root = rrb.Vertical(rrb.TextDocumentView(origin=TRIAGE_TAGS, name="triage"), root, row_shares=[1, 7])
+    elif verdict:  # a title bar and two lines of text (a long verdict wraps in a narrow window)
+        root = rrb.Vertical(rrb.TextDocumentView(origin=VERDICT, name="verdict"), root, row_shares=[1, VERDICT_SHARE])
     # paused, so that the viewer opens on the probe's first step (the worst match) and play walks from there
     time_panel = rrb.TimePanel(state="collapsed", timeline=PROBE_TIMELINE if single_pair else RANK_TIMELINE if head else TIMELINE,
                                play_state="paused", fps=2.0)

@@ -326,7 +326,7 @@ def _pair_sentence(result: PairResult) -> str:
     p = result.pair
     if "image_a" not in p:
         return (f"{p['kind']} pair, frame {p['frame_a']} cam {p['cam_a']} → frame {p['frame_b']} cam {p['cam_b']}; "
-                f"ground truth good to ~{p['gt_accuracy_px']} px. {result.n_matches} matches, {result.n_eval} within "
+                f"ground truth good to ~{_fmt(p['gt_accuracy_px'], 2)} px. {result.n_matches} matches, {result.n_eval} within "
                 f"{result.eval_threshold_px:g} px of the GT lines (the evaluation matches).")
     head = f"`{p['image_a']}` → `{p['image_b']}` ({p['source']}); "
     gt = p.get("ground_truth", "none")
@@ -338,7 +338,7 @@ def _pair_sentence(result: PairResult) -> str:
         where = f"{result.n_eval} ground-truth correspondences (the evaluation matches)"
     else:
         where = f"{result.n_eval} within {result.eval_threshold_px:g} px of the GT lines (the evaluation matches)"
-    accuracy = "" if p.get("gt_accuracy_px") is None else f", good to ~{p['gt_accuracy_px']} px"
+    accuracy = "" if p.get("gt_accuracy_px") is None else f", good to ~{_fmt(p['gt_accuracy_px'], 2)} px"
     return head + f"ground truth: {_GROUND_TRUTH.get(gt, gt)}{accuracy}. {result.n_matches} matches, {where}."
 
 
@@ -403,15 +403,20 @@ def _names(result: PairResult) -> list[str]:
 
 
 def log_pair(rec, index: int, pair: Pair, result: PairResult, n_lines: int = 30, colors: Colors | None = None,
-             probe_steps: int = 0, single_pair: bool = True, clear_reference: bool = False, motion: bool = True) -> None:
-    """Everything of one pair at ``pair`` = index (see :mod:`fviz.record.layout`): images, keypoints,
-    lines, epipoles, the summary, the metrics table, and the comparison chart (``single_pair``) or the
-    metric series and (``motion``) the motion tracks (runs). The reference lines when the notes say the ground truth is
-    suspect; ``clear_reference`` (a run whose pairs carry that verdict: triage) logs them empty otherwise."""
+             probe_steps: int = 0, single_pair: bool = True, clear_reference: bool = False, motion: bool = True,
+             by: str | None = None) -> None:
+    """Everything of one pair at ``pair`` = index (see :mod:`fviz.record.layout`): its verdict (judged on estimator
+    ``by``, default every one), images, keypoints, lines, epipoles, the summary, the metrics table, and the
+    comparison chart (``single_pair``) or the metric series and (``motion``) the motion tracks (runs). The reference
+    lines when the notes say the ground truth is suspect; ``clear_reference`` (a run whose pairs carry that verdict:
+    triage) logs them empty otherwise."""
     import rerun as rr
+
+    from fviz.verdicts import verdict_of
 
     colors = colors or L.estimator_colors(_names(result))
     rec.set_time(L.TIMELINE, sequence=index)
+    rec.log(L.VERDICT, rr.TextDocument(verdict_of(pair, result, by).markdown(), media_type="text/markdown"))
     sizes = {"a": pair.size_a, "b": pair.size_b}
     rec.log("b", rr.Transform3D(translation=[*L.offset_b(pair.size_a), 0.0]))
     for v, img in (("a", pair.image_a), ("b", pair.image_b)):
@@ -647,6 +652,20 @@ def _ring(center: np.ndarray, radius: float = 12.0, n: int = 16) -> np.ndarray:
     return center + radius * np.stack([np.cos(t), np.sin(t)], -1)
 
 
+def empty_probe_text(result: PairResult, steps: int, fs: list) -> str:
+    """Why the probe has no step: it is off, no F gives a line, or there is no evaluation match to walk."""
+    if steps <= 0:
+        return "**No probe**: it is off (`--probe 0`)."
+    if not fs:
+        return "**No probe**: no estimator gave an F (and there is no ground truth): no epipolar line to draw."
+    n = result.n_matches
+    if result.has_gt and n:
+        return (f"**No probe**: it walks the evaluation matches, and none of the {n} matches lies within "
+                f"{result.eval_threshold_px:g} px of the ground truth's lines (the verdict above). `--eval-threshold` "
+                "widens the band.")
+    return f"**No probe**: {n} matches, none to walk."
+
+
 def log_probe(rec, index: int, pair: Pair, result: PairResult, steps: int = PROBE_STEPS, by: str | None = None,
               colors: Colors | None = None) -> int:
     """The ``probe`` timeline: step k rings the k-th worst evaluation match in both images, joins them, and
@@ -657,7 +676,10 @@ def log_probe(rec, index: int, pair: Pair, result: PairResult, steps: int = PROB
     colors = colors or L.estimator_colors(_names(result))
     order = probe_order(result, by)[:max(steps, 0)]
     m, ok = result.matches, [r for r in result.estimators if not r.error]
-    if not ok:  # no F at all (every estimator failed and no ground truth): no line to probe
+    if not ok or not len(order):  # the probe tab says why it is empty
+        rec.set_time(L.PROBE_TIMELINE, sequence=0)
+        rec.set_time(L.TIMELINE, sequence=index)
+        rec.log(L.PROBE_TEXT, rr.TextDocument(empty_probe_text(result, steps, ok), media_type="text/markdown"))
         return 0
     sizes = {"a": pair.size_a, "b": pair.size_b}
     shift = L.offset_b(pair.size_a)
@@ -694,8 +716,6 @@ def log_static(rec, estimator_names: list[str], series: bool = False, legend: bo
     """Once per recording: the residual legend (``legend``: when it holds matches) and, for runs (``series``),
     the names, colours and marks of the metric series and (``motion``) the motion tracks (:func:`series_styles`),
     and their legend (``layout.LEGEND``)."""
-    import rerun as rr
-
     if legend:
         rec.log("/", L.annotation_context(), static=True)
     if series:
@@ -910,7 +930,7 @@ def pair_blueprint(pair: Pair, result: PairResult):
     names = _names(result)
     classes = match_classes(result)
     return L.blueprint(names, (pair.size_a, pair.size_b), single_pair=True, classes=classes if L.GT in classes else None,
-                       notice=suspect_notice(result.notes))
+                       notice=suspect_notice(result.notes), verdict=True)
 
 
 def log_pair_recording(rec, pair: Pair, result: PairResult, n_lines: int = 30, probe_steps: int = PROBE_STEPS,
@@ -922,7 +942,7 @@ def log_pair_recording(rec, pair: Pair, result: PairResult, n_lines: int = 30, p
     log_static(rec, _names(result))
     rec.set_time(L.PROBE_TIMELINE, sequence=0)
     log_pair(rec, index, pair, result, n_lines, colors, steps)
-    log_probe(rec, index, pair, result, steps, probe_by, colors)
+    log_probe(rec, index, pair, result, probe_steps, probe_by, colors)
     return steps
 
 

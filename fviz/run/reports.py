@@ -475,12 +475,16 @@ def _pair_text(rec: dict[str, Any], result: PairResult) -> str:
 
 
 def log_summary_pair(rec_stream, index: int, rec: dict[str, Any], result: PairResult, motion: bool = True) -> None:
-    """The light per-pair payload at ``pair`` = index: name, summary, metrics, errors, series (and with
+    """The light per-pair payload at ``pair`` = index: verdict, name, summary, metrics, errors, series (and with
     ``motion`` the motion tracks)."""
+    import rerun as rr
+
     from fviz.record import layout as L
     from fviz.record.writer import log_pair_text, log_series
+    from fviz.verdicts import pair_verdict
 
     rec_stream.set_time(L.TIMELINE, sequence=index)
+    rec_stream.log(L.VERDICT, rr.TextDocument(pair_verdict(rec).markdown(), media_type="text/markdown"))
     log_pair_text(rec_stream, result, _pair_text(rec, result))
     log_series(rec_stream, result, motion)
 
@@ -536,7 +540,7 @@ def write_recording(path: Path, out_dir: Path, config: RunConfig, summary: str =
     curves = {key: values.get(L.metric(key), {}) for key, *_ in CURVE_METRICS}  # none before the first pair
     curves = _curves_with_ground_truth(curves, out_dir, config, entries)
     ranges = ranges_of_values(values)
-    bp = L.blueprint(names, sizes, single_pair=False, ranges=ranges, curves=True, run_summary=True)
+    bp = L.blueprint(names, sizes, single_pair=False, ranges=ranges, curves=True, run_summary=True, verdict=sizes is not None)
     with RecordingWriter(path, "fviz-eval", bp) as w:
         log_static(w.rec, names, series=True, legend=sizes is not None, ranges=ranges)
         log_curves(w.rec, curves, L.estimator_colors(names))
