@@ -212,7 +212,7 @@ def with_two_view(diag: dict[str, Any], evidence: dict[str, Any]) -> dict[str, A
     return {**diag, **{k: v for k, v in evidence.items() if k != "estimators"}, "estimators": ests}
 
 
-def _fits_matches(name: str) -> bool:
+def fits_matches(name: str) -> bool:
     """Estimators whose F is fitted to the matches: not the baselines, not the networks (images only)."""
     from fviz.estimators.registry import is_baseline
 
@@ -267,7 +267,7 @@ def gt_suspect(diag: dict[str, Any] | None, estimators: list[dict[str, Any]]) ->
     if not diag:
         return None
     evidence = diag.get("estimators", {})
-    rows = [e for e in estimators if not e.get("error") and _fits_matches(e["name"]) and e["name"] in evidence]
+    rows = [e for e in estimators if not e.get("error") and fits_matches(e["name"]) and e["name"] in evidence]
     m = {e["name"]: {k: _num(e["metrics"].get(k)) for k in ("inlier_ratio", "n_inliers", "sed_median",
                                                                 "epipole_err_deg", "rot_err_deg")} for e in rows}
     consensus = [n for n in m if m[n]["inlier_ratio"] >= GT_SUSPECT_INLIER_RATIO]
@@ -350,7 +350,7 @@ def pair_epipole_offset(rec: dict[str, Any]) -> tuple[dict[str, np.ndarray], flo
     K, F_gt = np.array(res["pair"]["K_a"]), np.array(res["F_gt"])
     g = _direction_deg(K, epipoles(F_gt)[0])
     fits = {e["name"]: _direction_deg(K, epipoles(np.array(e["F"]))[0]) - g for e in res["estimators"]
-            if _fits_matches(e["name"]) and e.get("F") is not None
+            if fits_matches(e["name"]) and e.get("F") is not None
             and _num((diag.get("estimators") or {}).get(e["name"], {}).get("sed_median_inliers")) < GT_SUSPECT_FIT_PX}
     return (fits, float(K[0, 0])) if fits else None
 

@@ -28,7 +28,7 @@ def off(tmp_path_factory):
     return pair, result, fviz.save_recording(tmp_path_factory.mktemp("verdict") / "off.rrd", pair, result, probe=5)
 
 
-def test_no_evaluation_match_is_the_verdict_and_the_probe_says_why_it_is_empty(off):
+def test_no_evaluation_match_is_the_verdict_and_the_probe_walks_the_matchers_errors(off):
     from fviz.verdicts import NO_EVAL, verdict_of
 
     pair, result, rrd = off
@@ -39,8 +39,8 @@ def test_no_evaluation_match_is_the_verdict_and_the_probe_says_why_it_is_empty(o
     assert re.search(r"; ground truth suspect: (8point|ransac)'s inliers \(\d+%\) sit (19\d|20\d) px off F_gt's lines, "
                      r"0\.\d+ px off its own$", v.text), v.text
     assert text(rrd, L.VERDICT) == [v.markdown()]
-    (probe,) = text(rrd, L.PROBE_TEXT)
-    assert probe.startswith(f"**No probe**: it walks the evaluation matches, and none of the {result.n_matches} matches")
+    probe = text(rrd, L.PROBE_TEXT)  # no evaluation match to walk: every match, by the ground truth's residual
+    assert len(probe) == 5 and all("By the ground truth's residual over all matches (no evaluation match" in t for t in probe), probe
 
 
 def test_user_facing_numbers_are_rounded(off):

@@ -25,6 +25,10 @@ Entity paths (``{v}`` is the view, ``a`` or ``b``; ``{e}`` an estimator name, ``
                                 both images (in the root frame: b's shifted by ``offset_b``), thick, in that F's
                                 colour and labelled "REFERENCE"; drawn on the overview over the ground truth's
                                 white lines of the same matches. Empty on a triage pair whose ground truth is fine
+    gt/labelled                 (``--gt-matches``) the hand-labelled correspondences, both ends (root frame), large
+                                points coloured by the ground truth's residual on them (the residual scale); those
+                                at least RESIDUAL_MAX_PX off F_gt (fitted to them: a mislabel) ringed and labelled
+                                with their residual. On the overview; the probe walks them
     compare                     (one pair) a bar chart drawn in 2D: per metric one bar per F in its colour
                                 (LineStrips2D), labelled with the F's name and value (Points2D labels)
     pair/metrics                AnyValues: ``estimators`` (names) and one column per metric, in that order
@@ -35,9 +39,13 @@ Entity paths (``{v}`` is the view, ``a`` or ``b``; ``{e}`` an estimator name, ``
                                 ``epipole_y`` px; NaN when at infinity, its direction in ``epipole_dir_deg``),
                                 ``rotation_deg`` (angle of R) and the translation direction ``t_x``, ``t_y``,
                                 ``t_z`` (unit, the ground truth's sign)
-    {v}/probe, probe/text       the ``probe`` timeline (inspect): step k rings the k-th worst evaluation match
-                                in both images (yellow), joins the two rings, and draws the match's epipolar
-                                line under every F in the F's colour; the text lists the residuals
+    {v}/probe, probe/text       the ``probe`` timeline (inspect): step k rings the k-th point the probe walks
+                                (writer.probe_points: most telling first, near-duplicates skipped) in both
+                                images (yellow, PROBE_MARK_PX on screen and PROBE_RING_PX in the image), joins the
+                                two rings, and draws its epipolar line under every F in the F's colour; the text
+                                lists the residuals
+    probe/zoom/{v}              Transform3D on ``probe``: the probed end in image v (root frame), the origin of
+                                that zoomed view (PROBE_ZOOM_PX around it)
     errors/{e}                  TextLog: why an estimator failed on this pair
     pair/fundamental            AnyValues: ``estimators`` (names, ``gt`` first when known; failed ones left out),
                                 ``F`` (their F's, 9 values each, row-major), ``size_a``, ``size_b`` (w, h):
@@ -57,7 +65,7 @@ Training (``fviz train``'s train.rrd, :func:`fviz.log_training_step`; ``{k}`` na
 
     train/{curve}, val/{metric} Scalars on ``step``: the training loss, learning rate, gradient norm, and
                                 the validation metrics (``fviz train`` only)
-    watch/{k}/{v}/image         EncodedImage (JPEG), static: the pair as the network sees it (b below a)
+    watch/{k}/{v}/image         EncodedImage (JPEG), static: the pair as the network sees it (b below or beside a)
     watch/{k}/{v}/gt            LineStrips2D, static: the ground truth's epipolar lines of the pair's fixed
                                 correspondences (white) and a cross at its epipole
     watch/{k}/{v}/net           LineStrips2D on ``step``: the network's lines of the same correspondences (in
@@ -66,8 +74,12 @@ Training (``fviz train``'s train.rrd, :func:`fviz.log_training_step`; ``{k}`` na
                                 ``offset_b``), coloured by the network's residual (SED, px; the residual scale)
     watch/{k}/sed_px            Scalars on ``step``: the network's median SED on the correspondences (px)
 
-Image b is drawn below image a: ``b`` carries a translation by image a's height plus ``GAP_PX``, so one 2D
-view shows both (KITTI frames are 3.3:1: stacked they use the screen) and a match is one segment.
+Image b is drawn below image a (stacked) or right of it (side by side), whichever shows a pair of this
+shape larger (:func:`side_by_side`: KITTI's 3.3:1 frames stack; 4:3, 3:2 and portrait photos sit side by side):
+``b`` carries a translation by :func:`offset_b`, so one 2D view shows both and a match is one segment. Below
+both images a footer holds the estimator's numbers and the residual scale; it and every mark meant to keep
+its size on screen are scaled by :func:`screen_unit` (image px per screen px), so they read alike on a
+1241x376 KITTI frame and a 3072x2048 photo.
 
 Timelines: every pair sits at one index of ``pair`` (``inspect`` writes 0, ``eval`` one per pair; ``triage``
 adds ``rank``); ``inspect`` logs the pair at ``probe`` = 0 too, so each probe step shows over the pair.
@@ -289,9 +301,34 @@ MOTION_TRACKS = (
 )
 
 
-GAP_PX = 24  # between image a and image b (below it)
-FOOTER_PX = 84  # below image b: the estimator's numbers and the residual scale, its labels (drawn below their points:
-# ~24 screen px) inside the view when its height limits the zoom (the verdict above the tabs takes ~60 px)
+# The two images share one 2D view, stacked (b below a) or side by side (b right of a), whichever shows them
+# larger in a view of ARRANGE_VIEW_PX screen px (between the overview's image view and an estimator tab's at
+# 1600x1000): KITTI's 3.3:1 frames stack, 4:3, 3:2 and portrait photos sit side by side. Marks that must keep
+# their size on screen (gap, footer, labels' offsets, keypoints, epipole glyphs) are given in screen px and
+# scaled by :func:`screen_unit`, the image px per screen px in the narrowest view (VIEW_PX, the overview's).
+VIEW_PX = (1140.0, 820.0)  # below the verdict line (~60 px)
+ARRANGE_VIEW_PX = (1400.0, 820.0)
+GAP_PX = 24.0  # screen px between image a and image b
+FOOTER_PX = 64.0  # screen px below the images: the estimator's numbers and the residual scale
+
+
+def _image_px_per_screen_px(size_a: tuple[int, int], side: bool, view: tuple[float, float]) -> float:
+    """Image px per screen px when both images (image a's size) and the gap and footer fit ``view``."""
+    (w, h), (vw, vh) = size_a, view
+    if side:
+        return max(2 * w / (vw - GAP_PX), h / (vh - FOOTER_PX))
+    return max(w / vw, 2 * h / (vh - GAP_PX - FOOTER_PX))
+
+
+def side_by_side(size_a: tuple[int, int]) -> bool:
+    """Whether image b sits right of image a rather than below it (see ARRANGE_VIEW_PX)."""
+    return _image_px_per_screen_px(size_a, True, ARRANGE_VIEW_PX) < _image_px_per_screen_px(size_a, False, ARRANGE_VIEW_PX)
+
+
+def screen_unit(size_a: tuple[int, int]) -> float:
+    """Image px per screen px of the image views (at least the overview's, VIEW_PX): a mark of s screen px is
+    s * screen_unit image px wide. ~1.09 on KITTI, ~5 on a 3072x2048 pair."""
+    return _image_px_per_screen_px(size_a, side_by_side(size_a), VIEW_PX)
 
 
 def image(view: str) -> str:
@@ -315,7 +352,7 @@ def matches_owner(path: str) -> str | None:
 
 
 def match_points(x_a: np.ndarray, x_b: np.ndarray, size_a: tuple[int, int]) -> np.ndarray:
-    """The positions of ``matches``: (N, 2), (N, 2) -> (2N, 2), b's below image a."""
+    """The positions of ``matches``: (N, 2), (N, 2) -> (2N, 2), b's shifted by :func:`offset_b`."""
     return np.concatenate([x_a, x_b + offset_b(size_a)])
 
 
@@ -348,6 +385,8 @@ REFERENCE_LINES = 10  # of the ground truth's line matches (the first ones): the
 REFERENCE_RADIUS = 1.5  # thicker than every other line (0.9), so that it reads as the one to trust
 
 
+LABELLED = "gt/labelled"  # --gt-matches: the hand-labelled correspondences (see the module docstring)
+LABELLED_RADIUS_PX = 4.0  # screen px: larger than a keypoint, so that they stand out among them
 PAIR_FS = "pair/fundamental"
 CLICK_TEXT = "click/text"
 
@@ -364,6 +403,16 @@ def probe(view: str) -> str:
     return f"{view}/probe"
 
 
+PROBE_RING_PX = 3.0  # image px: a line outside this ring misses the match by more than 3 px (seen in the zoom)
+PROBE_MARK_PX = 12.0  # screen px: the ring that shows where the match is on the whole images
+PROBE_ZOOM_PX = 24.0  # image px each side of the match in the zoomed views
+
+
+def probe_zoom(view: str) -> str:
+    """A frame at the probed point of image ``view`` (a Transform3D on ``probe``): the zoomed view's origin."""
+    return f"probe/zoom/{view}"
+
+
 def epipoles(view: str) -> str:
     return f"{view}/epipoles"
 
@@ -372,17 +421,31 @@ def error(name: str) -> str:
     return f"errors/{name}"
 
 
-KEYPOINT_RADIUS_PX = 2.0  # on a KITTI frame (1241 px wide); wider images scale it, so that it stays visible
+KEYPOINT_RADIUS_PX = 2.0  # screen px
 
 
 def keypoint_radius(size_a: tuple[int, int]) -> float:
-    """Radius of the keypoints, in image pixels: 2 px on KITTI, proportionally more on wider photos."""
-    return KEYPOINT_RADIUS_PX * max(1.0, size_a[0] / 1241.0)
+    """Radius of the keypoints, in image pixels: KEYPOINT_RADIUS_PX on screen, whatever the images' size."""
+    return KEYPOINT_RADIUS_PX * screen_unit(size_a)
 
 
 def offset_b(size_a: tuple[int, int]) -> np.ndarray:
-    """Where image b's origin sits in the shared 2D space: below image a."""
-    return np.array([0.0, size_a[1] + GAP_PX])
+    """Where image b's origin sits in the shared 2D space: below image a, or right of it (:func:`side_by_side`)."""
+    gap = GAP_PX * screen_unit(size_a)
+    return np.array([size_a[0] + gap, 0.0]) if side_by_side(size_a) else np.array([0.0, size_a[1] + gap])
+
+
+def images_extent(size_a: tuple[int, int], size_b: tuple[int, int]) -> tuple[float, float]:
+    """(width, height) of both images as arranged, in the root frame (image px), footer left out."""
+    right, bottom = offset_b(size_a) + size_b
+    return max(size_a[0], right), max(size_a[1], bottom)
+
+
+def below_images(size_a: tuple[int, int], size_b: tuple[int, int], drop_px: float) -> np.ndarray:
+    """A point ``drop_px`` screen px below both images, centred under them, in image b's frame (the footer's
+    marks are logged under b): (2,)."""
+    w, h = images_extent(size_a, size_b)
+    return np.array([w / 2, h + drop_px * screen_unit(size_a)]) - offset_b(size_a)
 
 
 # ---------------------------------------------------------------------------------------------- blueprint
@@ -394,11 +457,11 @@ def _images_view(sizes: tuple[tuple[int, int], tuple[int, int]], name: str, cont
     """Image a above image b in one 2D view, with ``contents`` (entity path queries) over them."""
     import rerun.blueprint as rrb
 
-    (wa, ha), (wb, hb) = sizes
-    bottom = offset_b((wa, ha))[1] + hb + FOOTER_PX
+    w, h = images_extent(*sizes)
+    bottom = h + FOOTER_PX * screen_unit(sizes[0])
     clicks = [f"+ {click(v)}/**" for v in VIEWS]  # drawn live by the viewers that send clicks (fviz.interactive)
     return rrb.Spatial2DView(origin="/", contents=[f"+ {image('a')}", f"+ {image('b')}", *contents, *clicks], name=name,
-                             visual_bounds=rrb.VisualBounds2D(x_range=[-0.5, max(wa, wb) - 0.5], y_range=[-0.5, bottom - 0.5]),
+                             visual_bounds=rrb.VisualBounds2D(x_range=[-0.5, w - 0.5], y_range=[-0.5, bottom - 0.5]),
                              overrides=overrides)
 
 
@@ -410,7 +473,7 @@ def overview_tab(names: Sequence[str], sizes, single_pair: bool, gt: bool = True
 
     ref = GT if gt or not names else names[-1]  # without ground truth: the last estimator's (default: magsac)
     contents = ([f"+ {matches(ref)}"] + [f"+ {v}/est/{ref}/**" for v in VIEWS] + [f"+ {epipoles(v)}" for v in VIEWS]
-                + [f"+ {REFERENCE}"])
+                + [f"+ {REFERENCE}", f"+ {LABELLED}"])
     title = ("ground truth: residuals (keypoints) and lines (white)" if ref == GT
              else f"no ground truth: {ref}'s residuals (keypoints) and lines")
     images = _images_view(sizes, f"{notice}{title}; every F's epipole", contents)
@@ -438,11 +501,18 @@ def estimator_tab(name: str, sizes, classes: np.ndarray | None = None):
 
 
 def probe_tab(sizes):
+    """Both images with the probed match; beside them each end zoomed (a view whose origin follows the match,
+    showing the same images and lines PROBE_ZOOM_PX around it) and the residuals."""
     import rerun.blueprint as rrb
 
-    images = _images_view(sizes, "probe: the match (ring, joined) and its epipolar line under every F", [f"+ {probe(v)}" for v in VIEWS])
-    return rrb.Horizontal(images, rrb.TextDocumentView(origin=PROBE_TEXT, name="probe: this match"),
-                          column_shares=[3, 1], name="probe")
+    contents = [f"+ {probe(v)}" for v in VIEWS]
+    images = _images_view(sizes, "probe: the match (ring, joined) and its epipolar line under every F", contents)
+    zoom = rrb.VisualBounds2D(x_range=[-PROBE_ZOOM_PX, PROBE_ZOOM_PX], y_range=[-PROBE_ZOOM_PX, PROBE_ZOOM_PX])
+    zooms = [rrb.Spatial2DView(origin=probe_zoom(v), name=f"zoom {v}",
+                               contents=[f"+ {image(u)}" for u in VIEWS] + contents, visual_bounds=zoom) for v in VIEWS]
+    side = rrb.Vertical(rrb.Horizontal(*zooms), rrb.TextDocumentView(origin=PROBE_TEXT, name="probe: this match"),
+                        row_shares=[2, 3])
+    return rrb.Horizontal(images, side, column_shares=[3, 1], name="probe")
 
 
 def legend_view(origin: str, n: int, name: str, pitch: float = 24.0):
@@ -593,10 +663,10 @@ def training_blueprint(names: Sequence[str], sizes: Sequence[tuple[tuple[int, in
 
     dark = PlotBackground(color=CHART_BACKGROUND, show_grid=True)
     tabs = []
-    for name, ((wa, ha), (wb, hb)) in zip(names, sizes):
-        bottom = offset_b((wa, ha))[1] + hb
+    for name, pair_sizes in zip(names, sizes):
+        w, h = images_extent(*pair_sizes)
         images = rrb.Spatial2DView(origin=watch(name), name=f"{name}: network (colour) vs ground truth (white)",
-                                   visual_bounds=rrb.VisualBounds2D(x_range=[-0.5, max(wa, wb) - 0.5], y_range=[-0.5, bottom - 0.5]))
+                                   visual_bounds=rrb.VisualBounds2D(x_range=[-0.5, w - 0.5], y_range=[-0.5, h - 0.5]))
         plot = rrb.TimeSeriesView(origin=watch(name, "sed_px"), name=f"{name}: median SED (px)", background=dark)
         tabs.append(rrb.Vertical(images, plot, row_shares=[3, 1], name=f"pair {name}"))
     if curves:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import contextlib
 import math
+from dataclasses import dataclass
 import os
 import sys
 from pathlib import Path
@@ -23,16 +24,16 @@ from fviz.data.pair import Pair
 from fviz.diagnose import GT_SUSPECT_NOTE
 from fviz.errors import FvizError
 from fviz.evaluate import PairResult
+from fviz.estimators.registry import is_baseline
 from fviz.geometry import (
     AUC_THRESHOLDS_DEG, NSGD_RECALL_THRESHOLD, border_point, clip_lines, describe_epipole, epipoles, lines_in_a, lines_in_b,
-    pose_auc, rotation_angle_deg,
+    pose_auc, rotation_angle_deg, symmetric_epipolar_distance,
 )
 from fviz.record import layout as L
 
 FLUSH_PAIRS = 50  # a run's recording is flushed every this many pairs (see RecordingWriter.pair_done)
 JPEG_QUALITY = 50  # a KITTI frame in ~46 KB; zoomed 1.5x, no difference from 95 that a reader sees
 PROBE_STEPS = 20
-PROBE_RING_PX = 3.0  # the probe's ring: a line outside it misses the match by more than 3 px
 
 
 def batching():
@@ -183,17 +184,18 @@ def line_subset(result: PairResult, n: int, seed: int = 0) -> np.ndarray:
     return np.sort(rng.choice(pool, size=min(n, len(pool)), replace=False))
 
 
-def _epipole_marks(name: str, e: np.ndarray, size: tuple[int, int]):
+def _epipole_marks(name: str, e: np.ndarray, size: tuple[int, int], unit: float = 1.0):
     """A cross at the epipole (on the border, when it is outside the image or at infinity) with its hover
-    text, and the arrow towards it when outside: (strips (2, 2, 2), label, arrow (origin, vector) or None)."""
+    text, and the arrow towards it when outside: (strips (2, 2, 2), label, arrow (origin, vector) or None).
+    ``unit``: image px per screen px (layout.screen_unit), so that the cross and arrow keep their size on screen."""
     w, h = size
     ep = describe_epipole(e, w, h)
     where = "at infinity" if ep.point is None else f"at ({ep.point[0]:.0f}, {ep.point[1]:.0f})"
     at = ep.point if ep.inside else border_point(ep.direction, w, h)
-    arm = 14.0
+    arm = 14.0 * unit
     cross = np.array([[at - (arm, 0), at + (arm, 0)], [at - (0, arm), at + (0, arm)]])
     label = f"{name}: epipole {where}" + ("" if ep.inside else f", towards ({ep.direction[0]:+.2f}, {ep.direction[1]:+.2f})")
-    arrow = None if ep.inside else (at - 56.0 * ep.direction, 44.0 * ep.direction)
+    arrow = None if ep.inside else (at - 56.0 * unit * ep.direction, 44.0 * unit * ep.direction)
     return cross, label, arrow
 
 
@@ -208,43 +210,63 @@ _GLYPHS = (
 )  # each symmetric about the epipole: its bounding box is centred there
 
 
-def _glyph(k: int, at: np.ndarray, name: str) -> list[np.ndarray]:
+def _glyph(k: int, at: np.ndarray, name: str, unit: float = 1.0) -> list[np.ndarray]:
     if name == L.GT:
-        return [_ring(at, 1.3 * GLYPH_PX, 20)]
-    return [at + GLYPH_PX * np.asarray(s, float) for s in _GLYPHS[k % len(_GLYPHS)]]
+        return [_ring(at, 1.3 * GLYPH_PX * unit, 20)]
+    return [at + GLYPH_PX * unit * np.asarray(s, float) for s in _GLYPHS[k % len(_GLYPHS)]]
 
 
+TAG_ROW_PX, TAG_CHAR_PX = 24.0, 8.0  # a label's height and its width per character, screen px (with its box)
+
+
+def place_tags(wants: Sequence[np.ndarray], texts: Sequence[str], size: tuple[int, int], unit: float) -> list[np.ndarray]:
+    """Positions for labels wanted at ``wants`` (image px) that keep their boxes (TAG_ROW_PX high,
+    TAG_CHAR_PX per character wide, in screen px) inside the image and apart: each moves up row by row, then
+    down, until it overlaps none placed before it."""
+    row, placed = TAG_ROW_PX * unit, []
+    for want, text in zip(wants, texts):
+        half = (len(text) + 2) * TAG_CHAR_PX * unit / 2
+        x = min(max(want[0], half), max(size[0] - half, half))
+        y0 = min(max(want[1], row), max(size[1] - row, row))
+        tries = [y0 - i * row for i in range(len(wants) + 1)] + [y0 + i * row for i in range(1, len(wants) + 1)]
+        free = [y for y in tries if 0 <= y <= size[1] and not any(
+            abs(x - p[0]) < half + h and abs(y - p[1]) < row for p, h in placed)]
+        placed.append((np.array([x, free[0] if free else y0]), half))
+    return [p for p, _ in placed]
+
+
+LINE_PX, CROSS_PX = 0.9, 2.0  # radii of the epipolar lines and the epipole's cross, screen px (times screen_unit)
 LABEL_ON_PHOTO = (0, 0, 0)  # Rerun writes a label in its entity's colour on a light box over the photos: black reads
 
 
-def _log_epipoles(rec, path: str, marks: list, clear: bool, size: tuple[int, int], extra=()) -> None:
+def _log_epipoles(rec, path: str, marks: list, clear: bool, size: tuple[int, int], extra=(), unit: float = 1.0) -> None:
     """The overview's epipoles: per F a glyph of its own in its colour over a black halo, drawn above the
     lines, and its name in a label stacked above the epipole (one row per F, so that epipoles a few pixels
-    apart keep both names) joined to it by a thin line. ``marks``: [(name, colour, where, hover label, arrows)];
-    ``extra``: more labels [(where, text)] (the residual scale's ends)."""
+    apart keep both names, :func:`place_tags`) joined to it by a thin line. ``marks``: [(name, colour, where, hover
+    label, arrows)]; ``extra``: more labels [(where, text)] (the residual scale's ends); ``unit``: image px per
+    screen px (layout.screen_unit)."""
     import rerun as rr
 
     halo, strips, colors, radii, labels, arrows, points, names = [], [], [], [], [], [], [], []
-    for k, (name, color, at, label, arrow) in enumerate(marks):
-        glyph = _glyph(k - 1, at, name)
+    tags = place_tags([at + (0.0, -2.8 * GLYPH_PX * unit) for _, _, at, _, _ in marks], [m[0] for m in marks], size, unit)
+    for k, ((name, color, at, label, arrow), tag) in enumerate(zip(marks, tags)):
+        glyph = _glyph(k - 1, at, name, unit)
         halo += glyph
         strips += glyph
         colors += [color] * len(glyph)
-        radii += [1.6] * len(glyph)
+        radii += [1.6 * unit] * len(glyph)
         labels += [label] * len(glyph)
         arrows += arrow
-        tag = at + (0.0, -2.8 * GLYPH_PX - 26.0 * k)
-        tag[0] = min(max(tag[0], 60.0), size[0] - 60.0)  # names of epipoles on the border stay on screen
-        strips.append(np.stack([at + (0.0, -1.3 * GLYPH_PX), tag]))
+        strips.append(np.stack([at + (0.0, -1.3 * GLYPH_PX * unit), tag]))
         colors.append(color)
-        radii.append(0.5)
+        radii.append(0.5 * unit)
         labels.append(label)
         points.append(tag)
         names.append(name)
     points += [at for at, _ in extra]
     names += [text for _, text in extra]
     rec.log(path, rr.LineStrips2D(halo + strips, colors=[(0, 0, 0)] * len(halo) + colors,
-                                  radii=[3.2] * len(halo) + radii, labels=[""] * len(halo) + labels, show_labels=False,
+                                  radii=[3.2 * unit] * len(halo) + radii, labels=[""] * len(halo) + labels, show_labels=False,
                                   draw_order=40.0),
             rr.Points2D(points, radii=0.1, colors=[LABEL_ON_PHOTO], labels=names, show_labels=True, draw_order=41.0),
             *([rr.Arrows2D(origins=[a[0] for a in arrows] or np.zeros((0, 2)), vectors=[a[1] for a in arrows] or np.zeros((0, 2)),
@@ -260,38 +282,47 @@ def estimator_caption(r, result: PairResult) -> str:
             f"on its line to yellow >= {L.RESIDUAL_MAX_PX:g} px (scale below)")
 
 
-def caption_strip(size_b: tuple[int, int], r, result: PairResult) -> tuple:
-    """The estimator's numbers below image b, as a labelled invisible strip: (strip, colour, radius, label)."""
-    at = np.array([size_b[0] / 2, size_b[1] + 18.0])
+def caption_strip(size_a: tuple[int, int], size_b: tuple[int, int], r, result: PairResult) -> tuple:
+    """The estimator's numbers below the images (in image b's frame), as a labelled invisible strip:
+    (strip, colour, radius, label)."""
+    at = L.below_images(size_a, size_b, 18.0)
     return np.stack([at, at]), _rgb(LABEL_ON_PHOTO), 0.0, estimator_caption(r, result)
 
 
-def epipole_name_strip(cross: np.ndarray, label: str, size: tuple[int, int]) -> tuple:
-    """An estimator tab's epipole name as a labelled invisible strip 34 px above its cross (below it near the
-    top edge), kept 130 px inside the sides (the label is ~260 px wide): (strip, colour, radius, label).
+def epipole_name_strip(cross: np.ndarray, label: str, size: tuple[int, int], unit: float = 1.0) -> tuple:
+    """An estimator tab's epipole name as a labelled invisible strip 34 screen px above its cross (below it near
+    the top edge), its box inside the image (:func:`place_tags`): (strip, colour, radius, label).
     Rerun writes a label in its strip's colour: black, on its light box, reads on any photo."""
     at = cross.mean(axis=(0, 1))
-    at = np.array([min(max(at[0], 130.0), size[0] - 130.0), at[1] - 34.0 if at[1] > 50.0 else at[1] + 22.0])
+    at = place_tags([at + (0.0, -34.0 * unit if at[1] > 50.0 * unit else 22.0 * unit)], [label], size, unit)[0]
     return np.stack([at, at]), _rgb(LABEL_ON_PHOTO), 0.0, label
 
 
-SCALE_STEP = 28.0  # one residual bin of the scale below image b
+SCALE_STEP = 28.0  # one residual bin of the scale below the images, screen px
 
 
-def scale_ends(size_b: tuple[int, int]) -> list[tuple[np.ndarray, str]]:
+def _scale_row(size_a: tuple[int, int], size_b: tuple[int, int]) -> tuple[float, float, float, float]:
+    """The residual scale's row in image b's frame: (x of its left end, y, one bin's width, image px per screen px)."""
+    unit = L.screen_unit(size_a)
+    x, y = L.below_images(size_a, size_b, 46.0)
+    step = SCALE_STEP * unit
+    return x - step * L.RESIDUAL_CLASSES / 2, y, step, unit
+
+
+def scale_ends(size_a: tuple[int, int], size_b: tuple[int, int]) -> list[tuple[np.ndarray, str]]:
     """Where the residual scale's end labels go (image b's frame) and what they say."""
-    y, x0 = size_b[1] + 46.0, size_b[0] / 2 - SCALE_STEP * L.RESIDUAL_CLASSES / 2
-    return [(np.array([x0 - 150.0, y]), "keypoint residual: on its line (0 px)"),
-            (np.array([x0 + SCALE_STEP * L.RESIDUAL_CLASSES + 80.0, y]), f">= {L.RESIDUAL_MAX_PX:g} px off its line")]
+    x0, y, step, unit = _scale_row(size_a, size_b)
+    return [(np.array([x0 - 150.0 * unit, y]), "keypoint residual: on its line (0 px)"),
+            (np.array([x0 + step * L.RESIDUAL_CLASSES + 80.0 * unit, y]), f">= {L.RESIDUAL_MAX_PX:g} px off its line")]
 
 
-def residual_scale(size_b: tuple[int, int]) -> list[tuple]:
-    """The keypoints' colour scale below image b (under the ground truth's lines, so in every tab): one segment
-    per residual bin. -> [(strip, colour, radius, label)]; the ends are labelled in the estimators' captions and
-    on the overview (:func:`scale_ends`)."""
-    y, x0 = size_b[1] + 46.0, size_b[0] / 2 - SCALE_STEP * L.RESIDUAL_CLASSES / 2
+def residual_scale(size_a: tuple[int, int], size_b: tuple[int, int]) -> list[tuple]:
+    """The keypoints' colour scale below the images (under the ground truth's lines, so in every tab): one
+    segment per residual bin. -> [(strip, colour, radius, label)]; the ends are labelled in the estimators'
+    captions and on the overview (:func:`scale_ends`)."""
+    x0, y, step, unit = _scale_row(size_a, size_b)
     colors = L.class_color(np.arange(L.RESIDUAL_CLASSES))
-    return [(np.array([(x0 + c * SCALE_STEP, y), (x0 + (c + 1) * SCALE_STEP, y)]), colors[c], 6.0,
+    return [(np.array([(x0 + c * step, y), (x0 + (c + 1) * step, y)]), colors[c], 6.0 * unit,
              f"keypoint residual {c * L.RESIDUAL_BIN_PX:g} px" + ("+" if c == L.RESIDUAL_CLASSES - 1 else ""))
             for c in range(L.RESIDUAL_CLASSES)]
 
@@ -385,9 +416,12 @@ def pair_markdown(result: PairResult, probe_steps: int = 0) -> str:
     lines.append("- One tab per estimator: its keypoints coloured by its residual (viridis, yellow = ≥ "
                  f"{L.RESIDUAL_MAX_PX:g} px off its line), its lines and epipole in its colour, the ground truth's white.")
     if probe_steps:
-        lines.append(f"- **probe** tab: press play (or drag the `{L.PROBE_TIMELINE}` time cursor) to walk the "
-                     f"{probe_steps} worst evaluation matches: each step rings one match and draws its epipolar "
-                     "line under every F.")
+        lines.append(f"- **probe** tab: press play (or drag the `{L.PROBE_TIMELINE}` time cursor) to walk "
+                     f"{probe_steps} matches, the most telling first (each step says by what; near-duplicates skipped): "
+                     "each step rings one match (yellow, joined between the images) and draws its epipolar line under "
+                     f"every F, thinner in estimator order; the zoomed views show each end {L.PROBE_ZOOM_PX:g} px around "
+                     f"with a {L.PROBE_RING_PX:g} px ring: a line that misses it is more than {L.PROBE_RING_PX:g} px off "
+                     "there (ground truth white).")
     lines.append("- SED: symmetric epipolar distance, median over the evaluation matches; rot/trans: pose error "
                  "from E = K_bᵀ F K_a; inliers: share of all matches; time s: the estimator's run time; the other "
                  "metrics: `fviz inspect pair ... --json`.")
@@ -418,6 +452,7 @@ def log_pair(rec, index: int, pair: Pair, result: PairResult, n_lines: int = 30,
     rec.set_time(L.TIMELINE, sequence=index)
     rec.log(L.VERDICT, rr.TextDocument(verdict_of(pair, result, by).markdown(), media_type="text/markdown"))
     sizes = {"a": pair.size_a, "b": pair.size_b}
+    unit = L.screen_unit(pair.size_a)
     rec.log("b", rr.Transform3D(translation=[*L.offset_b(pair.size_a), 0.0]))
     for v, img in (("a", pair.image_a), ("b", pair.image_b)):
         rec.log(L.image(v), rr.EncodedImage(contents=encode_jpeg(img), media_type="image/jpeg"))
@@ -439,29 +474,55 @@ def log_pair(rec, index: int, pair: Pair, result: PairResult, n_lines: int = 30,
         lines = {"a": lines_in_a(r.F, m.x_b[sub]), "b": lines_in_b(r.F, m.x_a[sub])}
         for v, e in zip(L.VIEWS, epipoles(r.F)):
             seg, inside = clip_lines(lines[v], *sizes[v])
-            cross, label, arrow = _epipole_marks(r.name, e, sizes[v])
+            cross, label, arrow = _epipole_marks(r.name, e, sizes[v], unit)
             arrows = [] if arrow is None else [(*arrow, color)]
             n = int(inside.sum())
             # lines unlabelled (hovering one names its entity, hence the estimator); the epipole's label says where
             # below image b: the estimator's numbers, or under the ground truth's lines (in every tab) the residual
             # scale; labelled strips of this entity (a Points2D would add its columns to the file)
-            extra = [] if v != "b" else residual_scale(sizes[v]) if r.name == L.GT else [caption_strip(sizes[v], r, result)]
+            extra = ([] if v != "b" else residual_scale(pair.size_a, sizes[v]) if r.name == L.GT
+                     else [caption_strip(pair.size_a, sizes[v], r, result)])
             shown = r.name != L.GT  # an estimator's tab names its epipole: black on a light box above the cross
             if shown:
-                extra.append(epipole_name_strip(cross, label, sizes[v]))
+                extra.append(epipole_name_strip(cross, label, sizes[v], unit))
             _log_marks(rec, L.est(v, r.name, "epilines"), [*seg[inside], *cross, *(x[0] for x in extra)],
-                       [color] * (n + 2) + [x[1] for x in extra], [0.9] * n + [2.0, 2.0] + [x[2] for x in extra],
+                       [color] * (n + 2) + [x[1] for x in extra], [LINE_PX * unit] * n + [CROSS_PX * unit] * 2 + [x[2] for x in extra],
                        [""] * n + ["" if shown else label] * 2 + [x[3] for x in extra], arrows, clear=not single_pair,
                        show_labels=shown)
             marks[v].append((r.name, color, cross.mean(axis=(0, 1)), label, arrows))
     for v in L.VIEWS:
-        _log_epipoles(rec, L.epipoles(v), marks[v], not single_pair, sizes[v], scale_ends(sizes[v]) if v == "b" else ())
+        _log_epipoles(rec, L.epipoles(v), marks[v], not single_pair, sizes[v],
+                      scale_ends(pair.size_a, sizes[v]) if v == "b" else (), unit)
     if clear_reference or suspect_reference(result.notes) is not None:
         log_reference(rec, pair, result, colors, sub)
+    if pair.gt_points is not None:
+        log_labelled(rec, pair, result)
     if single_pair:
         log_comparison(rec, result, colors)
     else:
         log_series(rec, result, motion)
+
+
+def log_labelled(rec, pair: Pair, result: PairResult) -> None:
+    """``layout.LABELLED``: the hand-labelled correspondences (``--gt-matches``), both ends, coloured by the
+    ground truth's residual on them; those at least RESIDUAL_MAX_PX off it ringed and labelled (a mislabel
+    that F_gt, fitted to them all, could not follow)."""
+    import rerun as rr
+
+    gt = result.get(L.GT)
+    if gt is None or gt.error:
+        return
+    x_a, x_b = (np.asarray(x, float) for x in pair.gt_points)
+    residual = symmetric_epipolar_distance(gt.F, x_a, x_b)
+    unit = L.screen_unit(pair.size_a)
+    text = [f"labelled correspondence {i}: {v:.2f} px off F_gt" for i, v in enumerate(residual)]
+    off = np.flatnonzero(residual >= L.RESIDUAL_MAX_PX)
+    ends = L.match_points(x_a[off], x_b[off], pair.size_a)
+    rings = [_ring(p, 2.5 * L.LABELLED_RADIUS_PX * unit, 24) for p in ends]
+    rec.log(L.LABELLED, rr.Points2D(L.match_points(x_a, x_b, pair.size_a), class_ids=np.tile(L.residual_classes(residual), 2),
+                                    radii=L.LABELLED_RADIUS_PX * unit, labels=text + text, show_labels=False, draw_order=38.0),
+            rr.LineStrips2D(rings, colors=[_rgb(L.PROBE_COLOR)] * len(rings), radii=-1.0, labels=[text[i] for i in off] * 2,
+                            show_labels=True, draw_order=39.0))
 
 
 def score_labels(m) -> dict:
@@ -627,24 +688,93 @@ def log_series(rec, result: PairResult, motion: bool = True) -> None:
 
 
 PROBE_BY_SCORE = "score"
+PROBE_SPACING_PX = 20.0  # screen px: a match this near one already walked (at either end) is a near-duplicate
 
 
-def probe_order(result: PairResult, by: str | None = None) -> np.ndarray:
-    """Evaluation matches, worst first: by the largest residual over the estimators (not the GT), or by
-    estimator ``by``, or (``by="score"``) by the user's matcher's scores, least confident first. -> match indices (M,)."""
-    idx = np.flatnonzero(result.eval_mask) if result.eval_mask is not None else np.zeros(0, int)
+@dataclass
+class ProbePoints:
+    """What the probe walks: points of both images (matches, or the hand-labelled correspondences of
+    ``--gt-matches``), every F's residual (SED, px) on each, the indices to walk in order and why that order."""
+
+    x_a: np.ndarray
+    x_b: np.ndarray
+    residuals: dict[str, np.ndarray]
+    order: np.ndarray
+    what: str  # "match" or "labelled correspondence"
+    rank: str  # the order, in words
+
+
+def _drivers(result: PairResult) -> list:
+    """The estimators whose disagreement orders the probe: those fitted to the matches (never a baseline; the
+    networks only when nothing else is there)."""
+    from fviz.diagnose import fits_matches
+
+    ok = [r for r in result.estimators if not r.error and r.name != L.GT and not is_baseline(r.name)]
+    return [r for r in ok if fits_matches(r.name)] or ok
+
+
+def probe_points(result: PairResult, by: str | None = None, gt_points=None) -> ProbePoints:
+    """The probe's points and order, most telling first. ``by``: an estimator's residual, or ``score`` (the
+    user's matcher's scores, least confident first). By default what the pair's question needs:
+    hand-labelled correspondences (``gt_points``: (x_a, x_b)) by the ground truth's residual (a mislabelled one
+    first); no evaluation match: every match by the ground truth's residual (the matcher's errors); otherwise
+    the evaluation matches (every match without ground truth) by the disagreement of the estimators fitted to
+    the matches and the ground truth: the largest residual minus the smallest."""
+    m, ok = result.matches, [r for r in result.estimators if not r.error]
+    gt = result.get(L.GT)
+    gt = None if gt is None or gt.error else gt
+    if gt_points is not None and gt is not None and by != PROBE_BY_SCORE:
+        x_a, x_b = (np.asarray(x, float) for x in gt_points)
+        residuals = {r.name: symmetric_epipolar_distance(r.F, x_a, x_b) for r in ok}
+        idx, what = np.arange(len(x_a)), "labelled correspondence"
+    else:
+        x_a, x_b = (np.zeros((0, 2)), np.zeros((0, 2))) if m is None else (m.x_a, m.x_b)
+        residuals = {r.name: r.residuals_px for r in ok}
+        idx = np.flatnonzero(result.eval_mask) if result.eval_mask is not None else np.zeros(0, int)
+        what = "match"
     if by == PROBE_BY_SCORE:
-        scores = getattr(result.matches, "scores", None)
+        scores = getattr(m, "scores", None)
         if scores is None:
             raise FvizError(f"--probe-by {by}: these matches have no scores (give --matches with the matcher's scores)")
-        return idx[np.argsort(scores[idx], kind="stable")]
+        return ProbePoints(x_a, x_b, residuals, idx[np.argsort(scores[idx], kind="stable")], what,
+                           "the matcher's score, lowest first")
     if by is not None and result.get(by) is None:
         raise FvizError(f"--probe-by {by}: not an estimator of this pair ({', '.join(_names(result))})")
-    ok = [r for r in result.estimators if not r.error and r.name != L.GT and (by is None or r.name == by)]
-    if not ok or len(idx) == 0:
-        return idx
-    worst = np.max([r.residuals_px[idx] for r in ok], axis=0)
-    return idx[np.argsort(-worst, kind="stable")]
+    if by is not None:
+        score, rank = residuals.get(by), f"{by}'s residual"
+    elif gt is not None and (what != "match" or not len(idx)):
+        idx = np.arange(len(x_a))
+        score = residuals[L.GT]
+        rank = ("the ground truth's residual: a mislabelled correspondence first" if what != "match" else
+                "the ground truth's residual over all matches (no evaluation match: the matcher's errors)")
+    else:
+        drivers = [r.name for r in _drivers(result)] + ([L.GT] if gt is not None else [])
+        score = (np.max([residuals[n] for n in drivers], 0) - np.min([residuals[n] for n in drivers], 0)
+                 if len(drivers) > 1 else residuals[drivers[0]] if drivers else None)
+        rank = f"disagreement of {', '.join(drivers)} (largest residual minus smallest)"
+    if score is None or not len(idx):
+        return ProbePoints(x_a, x_b, residuals, idx, what, rank)
+    return ProbePoints(x_a, x_b, residuals, idx[np.argsort(-np.nan_to_num(score[idx], nan=-1.0), kind="stable")], what, rank)
+
+
+def spread_out(points: ProbePoints, spacing: float, steps: int) -> np.ndarray:
+    """The first ``steps`` of the order, skipping near-duplicates: a point within ``spacing`` image px of one
+    already taken, at either end (the same keypoint matched twice, a cluster of one structure)."""
+    taken: list[int] = []
+    for j in points.order:
+        if len(taken) >= steps:
+            break
+        if not taken or min(np.linalg.norm(points.x_a[taken] - points.x_a[j], axis=1).min(),
+                            np.linalg.norm(points.x_b[taken] - points.x_b[j], axis=1).min()) >= spacing:
+            taken.append(int(j))
+    return np.array(taken, int)
+
+
+def probe_walk(pair: Pair, result: PairResult, by: str | None = None, steps: int = PROBE_STEPS) -> tuple[ProbePoints, np.ndarray]:
+    """The probe's points (:func:`probe_points`) and the indices it walks: at most ``steps``, near-duplicates
+    (within PROBE_SPACING_PX on screen) skipped."""
+    points = probe_points(result, by, pair.gt_points)
+    return points, spread_out(points, PROBE_SPACING_PX * L.screen_unit(pair.size_a), max(steps, 0))
 
 
 def _ring(center: np.ndarray, radius: float = 12.0, n: int = 16) -> np.ndarray:
@@ -653,59 +783,56 @@ def _ring(center: np.ndarray, radius: float = 12.0, n: int = 16) -> np.ndarray:
 
 
 def empty_probe_text(result: PairResult, steps: int, fs: list) -> str:
-    """Why the probe has no step: it is off, no F gives a line, or there is no evaluation match to walk."""
+    """Why the probe has no step: it is off, no F gives a line, or there is no match to walk."""
     if steps <= 0:
         return "**No probe**: it is off (`--probe 0`)."
     if not fs:
         return "**No probe**: no estimator gave an F (and there is no ground truth): no epipolar line to draw."
-    n = result.n_matches
-    if result.has_gt and n:
-        return (f"**No probe**: it walks the evaluation matches, and none of the {n} matches lies within "
-                f"{result.eval_threshold_px:g} px of the ground truth's lines (the verdict above). `--eval-threshold` "
-                "widens the band.")
-    return f"**No probe**: {n} matches, none to walk."
+    return f"**No probe**: {result.n_matches} matches, none to walk."
 
 
 def log_probe(rec, index: int, pair: Pair, result: PairResult, steps: int = PROBE_STEPS, by: str | None = None,
               colors: Colors | None = None) -> int:
-    """The ``probe`` timeline: step k rings the k-th worst evaluation match in both images, joins them, and
-    draws its epipolar line under every F (in a: F^T x_b, in b: F x_a) in the F's colour, with the
-    residuals as text. -> the steps logged."""
+    """The ``probe`` timeline: step k rings the k-th point of :func:`probe_points` (near-duplicates skipped) in
+    both images, joins them, and draws its epipolar line under every F (in a: F^T x_b, in b: F x_a) in the F's
+    colour; the zoomed views follow it (``probe/zoom/{v}``); the residuals as text. -> the steps logged."""
     import rerun as rr
 
     colors = colors or L.estimator_colors(_names(result))
-    order = probe_order(result, by)[:max(steps, 0)]
-    m, ok = result.matches, [r for r in result.estimators if not r.error]
-    if not ok or not len(order):  # the probe tab says why it is empty
+    ok = [r for r in result.estimators if not r.error]
+    points, order = probe_walk(pair, result, by, steps) if ok and steps > 0 else (None, [])
+    if not len(order):  # the probe tab says why it is empty
         rec.set_time(L.PROBE_TIMELINE, sequence=0)
         rec.set_time(L.TIMELINE, sequence=index)
         rec.log(L.PROBE_TEXT, rr.TextDocument(empty_probe_text(result, steps, ok), media_type="text/markdown"))
         return 0
+    unit = L.screen_unit(pair.size_a)
     sizes = {"a": pair.size_a, "b": pair.size_b}
     shift = L.offset_b(pair.size_a)
-    rank = ("the largest residual over the estimators" if by is None else "the matcher's score, lowest first"
-            if by == PROBE_BY_SCORE else f"{by}'s residual")
     marker = L.PROBE_COLOR
     for k, j in enumerate(order):
         rec.set_time(L.PROBE_TIMELINE, sequence=k)
         rec.set_time(L.TIMELINE, sequence=index)
-        xa, xb = m.x_a[j], m.x_b[j]
-        for v, lines, ring in (("a", [lines_in_a(r.F, xb[None]) for r in ok], xa), ("b", [lines_in_b(r.F, xa[None]) for r in ok], xb)):
+        xa, xb = points.x_a[j], points.x_b[j]
+        for v, lines, at in (("a", [lines_in_a(r.F, xb[None]) for r in ok], xa), ("b", [lines_in_b(r.F, xa[None]) for r in ok], xb)):
             seg, inside = clip_lines(np.concatenate(lines), *sizes[v])
             drawn = [r for r, i in zip(ok, inside) if i]
-            strips = [*seg[inside], _ring(ring, PROBE_RING_PX)] + ([[xa, xb + shift]] if v == "a" else [])  # a's frame is the root
+            rings = [_ring(at, L.PROBE_RING_PX, 12), _ring(at, L.PROBE_MARK_PX * unit, 12)]
+            strips = [*seg[inside], *rings] + ([[xa, xb + shift]] if v == "a" else [])  # a's frame is the root
+            # radii in UI points (negative): the same on screen in the whole images and in the zoomed views
+            widths = list(-np.linspace(1.6, 0.7, len(drawn))) + [-0.8, -1.2, -0.8][: len(strips) - len(drawn)]
             _log_marks(rec, L.probe(v), strips, [_rgb(colors[r.name]) for r in drawn] + [marker] * (len(strips) - len(drawn)),
-                       list(np.linspace(1.6, 0.7, len(drawn))) + [0.8, 0.6][: len(strips) - len(drawn)],
-                       [f"{r.name}: epipolar line of match {j}" for r in drawn] + [f"match {j}"] * (len(strips) - len(drawn)), [],
-                       clear=False)
-        rows = [f"| {r.name} | {r.residuals_px[j]:.2f} |" for r in ok]
+                       widths, [f"{r.name}: epipolar line of {points.what} {j}" for r in drawn]
+                       + [f"{points.what} {j}"] * (len(strips) - len(drawn)), [], clear=False)
+            rec.log(L.probe_zoom(v), rr.Transform3D.from_fields(translation=[*(at + (shift if v == "b" else 0.0)), 0.0]))
+        rows = [f"| {r.name} | {points.residuals[r.name][j]:.2f} |" for r in ok]
+        scores = getattr(result.matches, "scores", None) if points.what == "match" else None
         text = "\n".join([
-            f"**step {k + 1} of {len(order)}**: match {j}, a ({xa[0]:.1f}, {xa[1]:.1f}) → b ({xb[0]:.1f}, {xb[1]:.1f})"
-            + ("" if getattr(m, "scores", None) is None else f", score {m.scores[j]:.3g}"),
+            f"**step {k + 1} of {len(order)}**: {points.what} {j}, a ({xa[0]:.1f}, {xa[1]:.1f}) → b ({xb[0]:.1f}, {xb[1]:.1f})"
+            + ("" if scores is None else f", score {scores[j]:.3g}"),
             "", "| F | SED px |", "|---|--:|", *rows, "",
-            f"Worst first, by {rank}. Yellow rings ({PROBE_RING_PX:g} px radius): the match in a and b. A line that "
-            f"misses its ring is more than {PROBE_RING_PX:g} px off there (ground truth white); lines are drawn "
-            "thinner in estimator order, so that one on top of another still shows both.",
+            f"By {points.rank}; near-duplicates skipped. Zoomed: a line outside the {L.PROBE_RING_PX:g} px ring misses "
+            "by more (summary: how to read the probe).",
         ])
         rec.log(L.PROBE_TEXT, rr.TextDocument(text, media_type="text/markdown"))
     return len(order)
@@ -938,7 +1065,7 @@ def log_pair_recording(rec, pair: Pair, result: PairResult, n_lines: int = 30, p
     """Everything ``inspect pair`` records of one pair into ``rec`` at ``pair`` = index: legend, images,
     lines, epipoles, summary, comparison, and the ``probe`` timeline. -> the probe steps logged."""
     colors = L.estimator_colors(_names(result))
-    steps = len(probe_order(result, probe_by)[:max(probe_steps, 0)])  # checks probe_by before logging
+    steps = len(probe_walk(pair, result, probe_by, probe_steps)[1])  # checks probe_by before logging
     log_static(rec, _names(result))
     rec.set_time(L.PROBE_TIMELINE, sequence=0)
     log_pair(rec, index, pair, result, n_lines, colors, steps)
@@ -949,7 +1076,7 @@ def log_pair_recording(rec, pair: Pair, result: PairResult, n_lines: int = 30, p
 def write_pair_recording(path: str | Path, pair: Pair, result: PairResult, n_lines: int = 30,
                          probe_steps: int = PROBE_STEPS, probe_by: str | None = None) -> Path:
     """One pair, one file, with its blueprint stored (what ``fviz inspect pair`` writes)."""
-    probe_order(result, probe_by)  # a bad --probe-by fails before any file is opened
+    probe_points(result, probe_by)  # a bad --probe-by fails before any file is opened
     with RecordingWriter(path, "fviz-inspect", pair_blueprint(pair, result), index=False) as w:
         log_pair_recording(w.rec, pair, result, n_lines, probe_steps, probe_by)
     return Path(path)
