@@ -291,7 +291,7 @@ def print_figures(out_dir: Path) -> None:
         t.add_row(name + (" (oracle)" if f["oracle"] else ""), *(fmt(v) for v in f["pose_auc"].values()),
                   fmt(f["nsgd_recall"]), fmt(f["sed_median"]), fmt(f["sampson_median"]), f"{f['errors']}/{f['pairs']}",
                   f"{f['fails']}/{f['pairs']}")
-    Console(width=max(Console().width, 120)).print(t)
+    Console(width=max(Console().width, 150)).print(t)
 
 
 def eval_(args: RunArgs, resume: Resume = False) -> None:

@@ -232,7 +232,7 @@ def summary_markdown(config: RunConfig, stats: _Stats) -> str:
             "**no ground truth**: residuals over all matches, the estimators compared with each other (agreement_nsgd)."
             if stats.ground_truth == {"none"} else f"evaluation matches: GT symmetric epipolar distance < {config.eval_threshold} px."),
         f"EPI-ABS / EPI-SQR (`epi_abs`, `epi_sqr`) are per-pair **means** over the evaluation matches, on F normalized by "
-        f"**{config.norm.upper()}**; distances in px. Statistics below are over the pairs where the estimator succeeded.",
+        f"**{config.norm.upper()}**; distances in px. Statistics below are over the pairs where the estimator gave an F.",
         "",
         *failure_markdown(stats.failures.document()),
         *([f"**{stats.gt_bias['text'][0].upper()}{stats.gt_bias['text'][1:]}.**", ""] if stats.gt_bias else []),
@@ -435,9 +435,10 @@ def figures_markdown(figures: dict[str, dict[str, Any]]) -> list[str]:
         "",
         "Pose AUC: area under the recall curve of max(rotation error, translation-direction error) up to each threshold, "
         "as LightGlue / glue-factory compute it ((R, t) from E = K_b^T F K_a by cheirality on the evaluation matches; "
-        "a failure counts as an infinite error). NSGD recall: share of pairs whose FM-Bench normalized symmetric "
-        "geometric distance is below the threshold (a failure is a miss). Medians: of the per-pair median over the "
-        "evaluation matches, over the pairs where the estimator succeeded. " + BASELINE_NOTE,
+        "an error (no F) counts as an infinite error). NSGD recall: share of pairs whose FM-Bench normalized symmetric "
+        "geometric distance is below the threshold (an error is a miss). Medians: of the per-pair median over the "
+        "evaluation matches, over the pairs where the estimator gave an F. Fails: past the column's threshold or no value, "
+        "the pairs `fviz compare` counts as fails. " + BASELINE_NOTE,
     ]
     return lines
 
