@@ -63,12 +63,16 @@ def log_compare_plot(rec, c, indices: dict[str, int]) -> None:
 
     strips, strip_colors, strip_radii = [], [], []
     only = {na: set(c.only_a_fails), nb: set(c.only_b_fails)}
-    for side, failing in only.items():  # bands first: the points are drawn over them
+    # bands first (the points are drawn over them), each of thin vertical lines: one thick line's round caps would
+    # bulge past the axes
+    lines = max(1, round(step / 5.0))
+    for side, failing in only.items():
         for n, i in zip(names, index):
             if n in failing:
-                strips.append([(to_x(i), 0.0), (to_x(i), L.COMPARE_H)])
-                strip_colors.append(_dim(colors[side]))
-                strip_radii.append(max(1.5, 0.5 * step))
+                for x in to_x(i) + step * ((np.arange(lines) + 0.5) / lines - 0.5):
+                    strips.append([(float(x), 2.0), (float(x), L.COMPARE_H - 2.0)])
+                    strip_colors.append(_dim(colors[side]))
+                    strip_radii.append(max(1.0, 0.5 * step / lines))
     axes = [[(0.0, 0.0), (0.0, L.COMPARE_H), (L.COMPARE_W, L.COMPARE_H)]]
     tick_pos, tick_labels = [], []
     for t in ticks:

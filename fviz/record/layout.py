@@ -472,10 +472,11 @@ def compare_blueprint(title: str):
     import rerun.blueprint as rrb
 
     bounds = rrb.VisualBounds2D(x_range=[-90.0, COMPARE_W + 40.0], y_range=[-70.0, COMPARE_H + 150.0])
-    plot = rrb.Spatial2DView(origin="compare", contents=[f"+ {COMPARE_PAIRS}", f"+ {COMPARE_LEGEND}"], name=title,
+    plot = rrb.Spatial2DView(origin="compare", contents=[f"+ {COMPARE_PAIRS}/**", f"+ {COMPARE_LEGEND}"], name=title,
                              background=CHART_BACKGROUND, visual_bounds=bounds)
     text = rrb.TextDocumentView(origin=COMPARE_TEXT, name="compare.md")
-    return rrb.Blueprint(rrb.Horizontal(plot, text, column_shares=[5, 2]), collapse_panels=True)
+    return rrb.Blueprint(rrb.Horizontal(plot, text, column_shares=[5, 2]), rrb.TimePanel(state="hidden"),
+                         collapse_panels=True)
 
 
 def blueprint(names: Sequence[str], sizes: tuple[tuple[int, int], tuple[int, int]] | None, single_pair: bool, head: bool = False,
