@@ -1,12 +1,17 @@
 """Compare two estimators pair by pair: wins, losses, ties, and the pairs where exactly one fails.
 
 Sides come from the metrics.csv of ``fviz eval`` runs: two estimators of one run, or one estimator
-of two runs (pairs matched by name). A side *failed* on a pair when the pair or the estimator errored
-(no value); it *fails* the metric when it failed or its value is past the metric's own threshold
+of two runs (pairs matched by name). A side has an *error* on a pair when the pair or the estimator errored
+(no F, no value; eval's ``errors (no F)``); it *fails* the metric when it has no value or its value is past the
+metric's own threshold
 (:data:`fviz.verdicts.FAIL_RULES`: ``sed_median > 2 px``, ``nsgd > 0.05``, ``inlier_ratio < 0.5``...; above it, or
 below it where higher is better), or past ``fail_threshold`` when given. A metric without a threshold fails only where
 there is no value. Every count of "fails" is labelled with its rule (:func:`fviz.verdicts.fails_label`). Wins and losses count the pairs where both sides have a value; a difference
 within the tolerance (``tie`` absolute, ``tie_rel`` relative to the larger of the two values) is a tie.
+
+The pairs where only one side fails are listed with where they sit in the run (one stretch of consecutive pairs is
+one event of the sequence: a turn, a stop) and the ``fviz inspect pair`` command that reopens each; compare.rrd
+beside compare.md plots both sides per pair (:mod:`fviz.record.compare_plot`).
 
 Beside the counts: the per-pair differences (a - b) and Wilcoxon's signed-rank test of them (two-sided;
 exact over the 2^n sign flips of the ranks for n <= EXACT_MAX_N, ties averaged, else the normal approximation
@@ -22,12 +27,13 @@ from pathlib import Path
 
 from fviz.atomic import write_text
 from fviz.errors import FvizError
-from fviz.verdicts import HIGHER_IS_BETTER, fails, fails_label
+from fviz.verdicts import ERROR, ERRORS, HIGHER_IS_BETTER, fails, fails_column, fails_label
 
 COMPARE_FILE = "compare.md"
 FAIL_THRESHOLD = None  # the metric's own threshold (fviz.verdicts); --fail-threshold replaces it
 TIE_REL = 0.05  # default: values within 5 % of the larger one are a tie (a 0.21 vs 0.2101 px "win" says nothing)
 EXACT_MAX_N = 50  # Wilcoxon: exact distribution up to this many non-zero differences
+NO_VALUE = "errors (no F or no value)"  # a side's pairs without a value: summary rows and compare.md
 
 
 @dataclass(frozen=True)
@@ -53,8 +59,8 @@ class Comparison:
     only_b_fails: list[str] = field(default_factory=list)
     both_fail: list[str] = field(default_factory=list)
     missing: list[str] = field(default_factory=list)  # pairs of one side only
-    a_failed: list[str] = field(default_factory=list)  # no value: the pair or the estimator errored
-    b_failed: list[str] = field(default_factory=list)
+    a_errors: list[str] = field(default_factory=list)  # no value: the pair or the estimator errored
+    b_errors: list[str] = field(default_factory=list)
     values: dict[str, tuple[float, float]] = field(default_factory=dict)
     tie: float = 0.0
     tie_rel: float = TIE_REL
@@ -139,9 +145,9 @@ def compare_values(a: Side, b: Side, metric: str, va: dict[str, tuple[float, str
         (x, ea), (y, eb) = va[name], vb[name]
         c.values[name] = (x, y)
         fa, fb = fails(metric, x, ea, fail_threshold), fails(metric, y, eb, fail_threshold)
-        for failed, v, e in ((c.a_failed, x, ea), (c.b_failed, y, eb)):
+        for errors, v, e in ((c.a_errors, x, ea), (c.b_errors, y, eb)):
             if e or not math.isfinite(v):
-                failed.append(name)
+                errors.append(name)
         if fa and fb:
             c.both_fail.append(name)
         elif fa:
@@ -230,8 +236,8 @@ def summary_rows(c: Comparison) -> list[tuple[str, str]]:
         (f"{na} better (wins)", str(len(c.wins))),
         (f"{nb} better (losses)", str(len(c.losses))),
         ("ties", str(len(c.ties))),
-        (f"{na} failed (no value)", str(len(c.a_failed))),
-        (f"{nb} failed (no value)", str(len(c.b_failed))),
+        (f"{na}: {NO_VALUE}", str(len(c.a_errors))),
+        (f"{nb}: {NO_VALUE}", str(len(c.b_errors))),
         (f"only {na} fails ({label})", str(len(c.only_a_fails))),
         (f"only {nb} fails ({label})", str(len(c.only_b_fails))),
         (f"both fail ({label})", str(len(c.both_fail))),
@@ -257,7 +263,67 @@ def _what(c: Comparison) -> str:
     return f"a = `{c.a.label}`, b = `{c.b.label}`, metric `{c.metric}`."
 
 
-def compare_markdown(c: Comparison) -> str:
+@dataclass(frozen=True)
+class Place:
+    """Where a compared pair sits in run a: its index, its frames (KITTI; else None), the command reopening it."""
+
+    index: int
+    frames: tuple[int, int] | None
+    command: str
+
+
+def places_of(run: Path) -> dict[str, Place]:
+    """Pair name -> :class:`Place` of every pair of a run (empty for a folder without run.json)."""
+    from fviz.run import ResultStore, read_config
+    from fviz.triage import inspect_command
+
+    config = read_config(Path(run))
+    if config is None:
+        return {}
+    source = config.selection.source()
+    out = {}
+    for rec in ResultStore(Path(run)).records():
+        ref = rec["ref"]
+        frames = (ref["frame_a"], ref["frame_b"]) if ref.get("frame_a") is not None else None
+        out[rec["key"]] = Place(rec["index"], frames, inspect_command(config, source, ref))
+    return out
+
+
+def stretches(indices) -> list[tuple[int, int]]:
+    """Runs of consecutive integers, first and last of each: [3, 4, 5, 9] -> [(3, 5), (9, 9)]."""
+    out: list[list[int]] = []
+    for i in sorted(set(indices)):
+        if out and i == out[-1][1] + 1:
+            out[-1][1] = i
+        else:
+            out.append([i, i])
+    return [(a, b) for a, b in out]
+
+
+def stretch_text(names: list[str], places: dict[str, Place]) -> str:
+    """Where the listed pairs sit in the run: "21 pairs, frames 410-431, consecutive (#410-#430 of the run): one
+    stretch of the sequence, one event (a turn? a stop? ...)", or the stretches they form; "" for fewer than 2."""
+    at = {places[n].index: places[n] for n in names if n in places}
+    if len(at) < 2:
+        return ""
+    runs = stretches(at)
+    frames = all(p.frames for p in at.values())
+
+    def span(a: int, b: int) -> str:
+        where = f"#{a}" if a == b else f"#{a}-#{b}"
+        return f"frames {at[a].frames[0]}-{at[b].frames[1]} ({where})" if frames else where
+
+    if len(runs) == 1:
+        return (f"{len(at)} pairs, {span(*runs[0])}, consecutive: one stretch of the sequence, one event (a turn? a "
+                "stop? look at its motion)")
+    shown = ", ".join(span(a, b) for a, b in runs[:6]) + (", ..." if len(runs) > 6 else "")
+    longest = max(b - a + 1 for a, b in runs)
+    return f"{len(at)} pairs in {len(runs)} stretches of consecutive pairs (the longest {longest} pairs): {shown}"
+
+
+def compare_markdown(c: Comparison, places: dict[str, Place] | None = None) -> str:
+    """compare.md; ``places`` (:func:`places_of` run a) add where the listed pairs sit and how to reopen them."""
+    places = places or {}
     na, nb = c.names
     rule = (f"its {c.fails_label}" + ("" if c.fail_threshold is None else " (`--fail-threshold`)")
             if c.fails_label != "no value" else f"(`{c.metric}` has no threshold: give `--fail-threshold`)")
@@ -266,8 +332,9 @@ def compare_markdown(c: Comparison) -> str:
         "",
         _what(c),
         "",
-        f"A side *failed* on a pair when it errored (no value: eval's `failed`); it *fails* the pair when it failed or "
-        f"{rule}. "
+        f"A side has an *error* on a pair when it gave no F there or no value (eval's `{ERRORS}`); it *fails* the "
+        f"pair when it has no value or {rule}"
+        + (f" (eval's `{fails_column()}` counts the same). " if (c.metric, c.fail_threshold) == ("sed_median", None) else ". ") +
         f"Wins and losses count pairs where both have a value; {_tie_text(c)} (`--tie`, `--tie-rel`). Wilcoxon's "
         "signed-rank test asks whether the per-pair differences a - b are centred on zero (small p: one side is "
         "better across the pairs, not just on a few).",
@@ -278,13 +345,19 @@ def compare_markdown(c: Comparison) -> str:
     ]
     for title, names in ((f"Only {na} fails ({c.fails_label})", c.only_a_fails),
                          (f"Only {nb} fails ({c.fails_label})", c.only_b_fails)):
-        lines += ["", f"## {title}", "", "| pair | a | b |", "|---|---|---|"]
-        lines += [f"| `{n}` | {_v(c, n, 0)} | {_v(c, n, 1)} |" for n in names] or ["| (none) | | |"]
+        lines += ["", f"## {title}", ""]
+        lines += [f"{stretch_text(names, places)}.", ""] if stretch_text(names, places) else []
+        lines += ["| pair | a | b | reopen it |", "|---|---|---|---|"]
+        lines += [f"| `{n}` | {_v(c, n, 0)} | {_v(c, n, 1)} | {_command(places, n)} |" for n in names] or ["| (none) | | | |"]
     better = "larger" if c.metric in HIGHER_IS_BETTER else "smaller"
     lines += ["", "## Per pair", "", f"{c.metric} of a and b and their difference, largest |a - b| first ({better} is better).",
               "", "| pair | a | b | a - b | |", "|---|--:|--:|--:|---|"]
     lines += [f"| `{n}` | {x:.4g} | {y:.4g} | {d:+.4g} | {_verdict(c, n, na, nb)} |" for n, x, y, d in c.differences()]
     return "\n".join(lines) + "\n"
+
+
+def _command(places: dict[str, Place], name: str) -> str:
+    return f"`{places[name].command}`" if name in places else ""
 
 
 def _verdict(c: Comparison, name: str, na: str, nb: str) -> str:
@@ -293,15 +366,18 @@ def _verdict(c: Comparison, name: str, na: str, nb: str) -> str:
 
 def _v(c: Comparison, name: str, i: int) -> str:
     v = c.values[name][i]
-    return f"{v:.4g}" if math.isfinite(v) else "failed"
+    return f"{v:.4g}" if math.isfinite(v) else ERROR
 
 
-def write_compare(c: Comparison, path: Path, force: bool = False) -> tuple[Path, bool]:
-    """Write the comparison to ``path`` (atomically): (path, whether a previous file was replaced).
+def write_compare(c: Comparison, path: Path, force: bool = False, places: dict[str, Place] | None = None) -> tuple[Path, bool]:
+    """Write the comparison to ``path`` (atomically) and its plot beside it (``path`` with ``.rrd``): (path,
+    whether a previous file was replaced). ``places``: :func:`places_of` run a, default read from it.
 
     A file there holding another comparison is replaced only with ``force``; the same comparison
     (e.g. after the run was resumed) is simply brought up to date.
     """
+    from fviz.record.compare_plot import write_compare_recording
+
     path = Path(path)
     replaced = path.exists()
     if replaced and not path.is_file():
@@ -314,4 +390,13 @@ def write_compare(c: Comparison, path: Path, force: bool = False) -> tuple[Path,
         if _what(c) not in previous.splitlines():
             raise FvizError(f"{path} holds another comparison: add --force to replace it, or write to --out OTHER.md")
     path.parent.mkdir(parents=True, exist_ok=True)
-    return write_text(path, compare_markdown(c)), replaced
+    places = places_of(c.a.run) if places is None else places
+    markdown = compare_markdown(c, places)
+    write_compare_recording(c, recording_path(path), {n: p.index for n, p in places.items()}, markdown)
+    return write_text(path, markdown), replaced
+
+
+def recording_path(markdown: Path) -> Path:
+    """compare.rrd beside compare.md (the plot of the same comparison)."""
+    rrd = Path(markdown).with_suffix(".rrd")
+    return rrd if rrd != Path(markdown) else Path(f"{markdown}.rrd")

@@ -25,8 +25,9 @@ The ground truth itself gets the same row (``gt``): the paper's "Ground-truth" r
 
 Ground truth is optional (:attr:`Pair.has_gt`). Without it there is no ``gt`` row and every GT-based metric
 (f_dist, nsgd, gt_inlier_ratio, epipole_err_deg, the pose errors) is absent, not NaN; the residuals are
-taken over all matches, and the estimators are compared with each other: ``agreement_nsgd`` is the median
-NSGD of an estimator's F to the other estimators' (``PairResult.agreement`` holds the whole matrix).
+taken over all matches, and the estimators are compared with each other: ``agreement_nsgd`` is the NSGD of an
+estimator's F to the closest other estimator's (``PairResult.agreement`` holds the whole matrix and the groups of
+estimators that agree: NSGD < NSGD_RECALL_THRESHOLD, see :func:`agreement_text`).
 With an F but no pose (``--F-gt``, ``--gt-matches``) the pose errors are absent; without cameras (K) the
 pose is not recovered and epipole_err_deg is absent. With ground-truth correspondences (``pair.gt_points``)
 the residuals are computed on them (``eval_points`` = "gt-matches") rather than on the matches near F_gt.
@@ -45,6 +46,7 @@ from fviz.errors import FvizError
 from fviz.estimators.base import Estimate, EstimateFn, run_estimator
 from fviz.estimators.features import FeatureCache, FeatureConfig, Features, Matches, match, user_matches
 from fviz.geometry import (
+    NSGD_RECALL_THRESHOLD,
     nearest_rotation,
     NORMS,
     NormalizationError,
@@ -316,8 +318,10 @@ def evaluation_points(pair: Pair, m: Matches, eval_threshold_px: float) -> tuple
 
 
 def agreement(results: list[EstimatorResult], size_a, size_b) -> dict[str, Any] | None:
-    """Without ground truth: NSGD between every two estimators' F (symmetric up to sampling), and each
-    estimator's ``agreement_nsgd`` metric (the median to the others). None for fewer than two Fs."""
+    """Without ground truth: NSGD between every two estimators' F (symmetric up to sampling), the groups that
+    agree (:func:`agreeing_groups`) and each estimator's ``agreement_nsgd`` metric (the NSGD to the closest
+    other F: a median over the others would put two agreeing robust estimators as far apart as an outlier
+    among three). None for fewer than two Fs."""
     ok = [r for r in results if r.F is not None]
     if len(ok) < 2:
         return None
@@ -327,8 +331,50 @@ def agreement(results: list[EstimatorResult], size_a, size_b) -> dict[str, Any] 
         for j in range(i + 1, n):
             matrix[i, j] = matrix[j, i] = 0.5 * (nsgd(ok[i].F, ok[j].F, size_a, size_b) + nsgd(ok[j].F, ok[i].F, size_a, size_b))
     for i, r in enumerate(ok):
-        r.metrics["agreement_nsgd"] = float(np.median(np.delete(matrix[i], i)))
-    return {"metric": "nsgd", "names": [r.name for r in ok], "matrix": matrix.tolist()}
+        r.metrics["agreement_nsgd"] = float(np.delete(matrix[i], i).min())
+    names = [r.name for r in ok]
+    return {"metric": "nsgd", "names": names, "matrix": matrix.tolist(), "threshold": NSGD_RECALL_THRESHOLD,
+            "groups": agreeing_groups(names, matrix)}
+
+
+def agreeing_groups(names: Sequence[str], matrix, threshold: float = NSGD_RECALL_THRESHOLD) -> list[list[str]]:
+    """The estimators linked by NSGD < ``threshold`` (FM-Bench's "same geometry"), chained: connected groups,
+    largest first (then in ``names`` order); an estimator agreeing with none is a group of its own. (N, N) matrix."""
+    m = np.asarray(matrix, float)
+    group = list(range(len(names)))
+    for i in range(len(names)):
+        for j in range(i + 1, len(names)):
+            if m[i, j] < threshold and group[i] != group[j]:
+                old, new = max(group[i], group[j]), min(group[i], group[j])
+                group = [new if g == old else g for g in group]
+    members = {g: [names[i] for i in range(len(names)) if group[i] == g] for g in dict.fromkeys(group)}
+    return sorted(members.values(), key=lambda g: -len(g))
+
+
+def _and(names: Sequence[str]) -> str:
+    return names[0] if len(names) == 1 else ", ".join(names[:-1]) + " and " + names[-1]
+
+
+def agreement_text(ag: dict[str, Any] | None) -> str:
+    """Which estimators agree, with the NSGD behind it: "ransac and magsac agree (NSGD 0.015); 8point differs
+    (NSGD >= 0.21 to each other F)"; "" without an agreement matrix."""
+    if not ag:
+        return ""
+    names, m = ag["names"], np.asarray(ag["matrix"], float)
+    groups = ag.get("groups") or agreeing_groups(names, m)
+    if len(groups) == len(names):
+        apart = min(m[i, j] for i in range(len(m)) for j in range(i + 1, len(m)))
+        return f"no two estimators agree (NSGD >= {apart:.2g} between any two)"
+    at = {n: i for i, n in enumerate(names)}
+    parts = []
+    for g in groups:
+        idx = [at[n] for n in g]
+        if len(g) > 1:
+            worst = max(m[i, j] for i in idx for j in idx if i < j)
+            parts.append(f"{_and(g)} agree (NSGD {'' if len(g) == 2 else '<= '}{worst:.2g})")
+        else:
+            parts.append(f"{g[0]} differs (NSGD >= {np.delete(m[idx[0]], idx[0]).min():.2g} to each other F)")
+    return "; ".join(parts)
 
 
 def evaluate_pair(
@@ -363,7 +409,7 @@ def evaluate_pair(
     notes = list(pair.notes)
     if not pair.has_gt:
         notes.append("no ground truth: the estimators are compared with each other (residuals over all matches, "
-                     "agreement_nsgd); no GT-based metric is computed")
+                     "agreement_nsgd: NSGD to the closest other F); no GT-based metric is computed")
     if pair.has_gt and norm == "etr" and abs(normalize(pair.F_gt, "fbn")[2, 2]) < 1e-9:
         notes.append("ETR is undefined for this pair (F33 = 0: rectified stereo); epi_* under ETR are NaN")
     results = []

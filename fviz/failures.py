@@ -1,7 +1,7 @@
 """Failures grouped by cause, where the user looks (issue 28 §2): eval and triage print them at the end, summary.md and
-summary.json hold them. A pair *failed* when it could not be evaluated at all (its record's ``error``); an estimator
-*failed* on a pair when it gave no F there (its ``error``). Neither is a metric's verdict: a metric "fails" a pair
-only past its threshold (:mod:`fviz.verdicts`).
+summary.json hold them. A *pair error*: the pair could not be evaluated at all (its record's ``error``); an estimator's
+*error*: it gave no F on a pair (its ``error``). Neither is a metric's verdict: a metric "fails" a pair only past its
+threshold (:mod:`fviz.verdicts`).
 
 Errors are grouped by their cause: the message with what varies from pair to pair (file and folder names, numbers)
 left out; each group keeps its count and one example, the first pair's own message."""
@@ -58,12 +58,13 @@ def _count(groups: dict, key, message: str, pair: str) -> dict[str, Any]:
 
 
 def failure_lines(doc: dict[str, Any] | None) -> list[str]:
-    """One line per cause: "5 pairs failed: <example> (e.g. <pair>)", "ahead failed 1/1 pairs: <example> (<pair>)"."""
+    """One line per cause: "5 pairs not evaluated (error): <example> (e.g. <pair>)", "ahead: error (no F) on 1/1
+    pairs: <example> (e.g. <pair>)"."""
     if not doc:
         return []
-    lines = [f"{g['count']} pair{'s' if g['count'] != 1 else ''} failed: {g['example']} (e.g. {g['pair']})"
+    lines = [f"{g['count']} pair{'s' if g['count'] != 1 else ''} not evaluated (error): {g['example']} (e.g. {g['pair']})"
              for g in doc.get("pairs", [])]
-    lines += [f"{g['estimator']} failed {g['count']}/{g['of']} pairs: {g['example']} (e.g. {g['pair']})"
+    lines += [f"{g['estimator']}: error (no F) on {g['count']}/{g['of']} pairs: {g['example']} (e.g. {g['pair']})"
               for g in doc.get("estimators", [])]
     return lines
 
@@ -74,8 +75,9 @@ def failure_markdown(doc: dict[str, Any] | None) -> list[str]:
     if not lines:
         return []
     return ["## Failures", "",
-            "Grouped by cause (file names and numbers aside), with one example each. A pair *failed* when it could not "
-            "be evaluated; an estimator *failed* when it gave no F. results.jsonl holds every pair's own reason.", "",
+            "Errors grouped by cause (file names and numbers aside), with one example each: a pair error leaves a pair "
+            "unevaluated; an estimator's error leaves it without an F there (not the same as *fails*: a value past "
+            "its metric's threshold). results.jsonl holds every pair's own reason.", "",
             *(f"- {line}" for line in lines), ""]
 
 

@@ -22,7 +22,7 @@ Estimator findings (over the whole run, printed above the pairs):
 
 Pair tags (thresholds are the constants below and in :mod:`fviz.diagnose`):
 
-- ``error``: the pair failed as a whole (missing image, fewer than MIN_MATCHES matches) or an estimator raised;
+- ``error``: a pair error (not evaluated: missing image, fewer than MIN_MATCHES matches) or an estimator raised;
 - ``few-matches``: fewer than FEW_MATCHES matches;
 - ``low-inliers``: the ranked estimator's inlier ratio is below LOW_INLIER_RATIO;
 - ``gt-suspect``: a property of the pair, whatever estimator ranks it (:func:`fviz.diagnose.gt_suspect`, the
@@ -50,7 +50,7 @@ Pair tags (thresholds are the constants below and in :mod:`fviz.diagnose`):
   frozen images): every F whose lines pass through the points fits them, so near-zero residuals and
   100 % inliers say nothing.
 
-- ``matcher`` / ``estimator``: the ranked estimator failed on the pair (an error, ``pose_err_deg`` >
+- ``matcher`` / ``estimator``: the ranked estimator fails the pair (an error, ``pose_err_deg`` >
   FAIL_POSE_DEG or ``sed_median`` > FAIL_SED_PX) and the matches were (``matcher``) or were not (``estimator``)
   to blame: fewer than MATCHER_MIN_PRECISION of them within 2 px of F_gt, or fewer than MATCHER_MIN_CORRECT
   within 1 px (``match_precision``, computed before any estimator); not on a ``gt-suspect`` pair, where both
@@ -77,7 +77,7 @@ from typing import Any
 import numpy as np
 
 from fviz.atomic import write_text
-from fviz.verdicts import (DEGENERATE_FRACTION, FAIL_RULES, HIGHER_IS_BETTER, LOW_INLIER_RATIO,  # noqa: F401 (re-exported)
+from fviz.verdicts import (DEGENERATE_FRACTION, ERROR, FAIL_RULES, HIGHER_IS_BETTER, LOW_INLIER_RATIO,  # noqa: F401 (re-exported)
                            MATCHER_MIN_CORRECT, MATCHER_MIN_PRECISION, blame, blamed, fail_phrase, failure, pair_verdict)
 from fviz.diagnose import (GT_SUSPECT_DIRECTION_DEG, GT_SUSPECT_DIRECTION_MARGIN_PX, GT_SUSPECT_EPIPOLE_NEAR,
                             GT_SUSPECT_FIT_PX, GT_SUSPECT_INLIER_RATIO, GT_SUSPECT_MARGIN_PX, GT_SUSPECT_RATIO,
@@ -395,7 +395,7 @@ def _tag_text(r: Ranked) -> str:
 
 
 def _fmt(v: float) -> str:
-    return "failed" if not math.isfinite(v) else f"{v:.4g}"
+    return ERROR if not math.isfinite(v) else f"{v:.4g}"
 
 
 def _label(name: str) -> str:
@@ -434,7 +434,7 @@ def triage_markdown(config, ranked: list[Ranked], top: int, by: str, metric: str
         "## Pairs",
         "",
         f"Ranked by `{metric}` of `{by}`{f' ({by_reason})' if by_reason else ''}, worst first ({worst} value; pairs "
-        f"where `{by}` failed come first); `--by NAME` ranks by another estimator.",
+        f"where `{by}` has no value (an {ERROR}) come first); `--by NAME` ranks by another estimator.",
         "",
         "Tags over all pairs: " + ", ".join(f"`{t}` {counts[t]}" for t in TAGS) + ".",
         f"Thresholds: few-matches < {FEW_MATCHES}; low-inliers ratio < {LOW_INLIER_RATIO}; gt-suspect (of the pair, "
@@ -448,7 +448,7 @@ def triage_markdown(config, ranked: list[Ranked], top: int, by: str, metric: str
         f"of the inliers; small-baseline: |t| < {SMALL_BASELINE_M} m or K_b R K_a^-1 explains >= {ROTATION_FRACTION:.0%} "
         f"of the matches within {ROTATION_PX:g} px; degenerate: >= {DEGENERATE_FRACTION:.0%} of the matches move < "
         f"{STATIC_PX:g} px.",
-        f"matcher / estimator: `{by}` failed (pose error > {FAIL_POSE_DEG:g} deg or median SED > {FAIL_SED_PX:g} px) and "
+        f"matcher / estimator: `{by}` fails (an {ERROR}, pose error > {FAIL_POSE_DEG:g} deg or median SED > {FAIL_SED_PX:g} px) and "
         f"fewer than {MATCHER_MIN_PRECISION:.0%} of the matches lie within 2 px of F_gt or fewer than {MATCHER_MIN_CORRECT} "
         f"within 1 px (matcher), or not (estimator); colmap-*: COLMAP's two-view configuration of the matches; "
         f"focal-implausible: Bougnoux focals of `{by}`'s F imaginary or more than {FOCAL_OFF:g}x off K's, where the "
@@ -473,7 +473,7 @@ def triage_markdown(config, ranked: list[Ranked], top: int, by: str, metric: str
 def rank_banner(r: Ranked, by: str, metric: str, rec: dict[str, Any]) -> str:
     """The head of a rank in triage.rrd: the pair's verdict judged on ``by`` (its record ``rec``: fviz.verdicts), one
     line first, so that the banner's height never hides it; then "rank 0: sed_median of 8point 3.34 px" and the tags."""
-    value = "failed" if r.failed else f"{r.value:.3g}{(' ' + L.metric_unit(metric)) if L.metric_unit(metric) else ''}"
+    value = ERROR if r.failed else f"{r.value:.3g}{(' ' + L.metric_unit(metric)) if L.metric_unit(metric) else ''}"
     return "\n".join([pair_verdict(rec, by).markdown(), "", f"**rank {r.rank}: {metric} of {by} {value}** (`{r.key}`, pair "
                       f"#{r.index}; ArrowRight: next worse-ranked pair)", ""] + [f"- **{t}**: {why}" for t, why in r.tags])
 

@@ -1,9 +1,11 @@
-"""One vocabulary of failure across eval, triage, compare and table (issue 28 §2).
+"""One vocabulary of failure across eval, triage, compare and table (issue 28 §2), two words never swapped:
 
-- an estimator **failed** on a pair: it gave no F there (it raised, timed out, returned nothing valid), or the pair
-  itself could not be evaluated (**pair failed**); eval's ``failed`` columns and :mod:`fviz.failures` count these;
+- an estimator's **error**: it gave no F on a pair (it raised, timed out, returned nothing valid), or the pair
+  itself could not be evaluated (a **pair error**); the ``errors (no F)`` columns, summary.json's ``errors`` and
+  :mod:`fviz.failures` count these;
 - an estimate **fails** a metric: it has a value worse than that metric's threshold below (``sed_median > 2 px``),
-  each metric with its own meaning; compare counts these (a failed estimate, having no value, fails every metric).
+  each metric with its own meaning; compare counts these, eval's ``fails`` column the pairs failing
+  ``sed_median`` (an error, having no value, fails every metric).
 
 A metric without an entry has no threshold: only a failed estimate (no value) fails it, unless ``compare
 --fail-threshold`` gives one. ``fails_label`` names the rule wherever a count of "fails" is shown.
@@ -64,6 +66,15 @@ def fails(metric: str, value: float, error: str = "", threshold: float | None = 
         return True
     rule = fail_rule(metric, threshold)
     return rule is not None and rule.fails(value)
+
+
+ERRORS = "errors (no F)"  # the column counting an estimator's errors, wherever one is shown
+ERROR = "error"  # a value that an error left empty
+
+
+def fails_column(metric: str = "sed_median", threshold: float | None = None) -> str:
+    """The header of a count of fails: "fails (sed_median > 2 px)"."""
+    return f"fails ({fails_label(metric, threshold)})"
 
 
 def fails_label(metric: str, threshold: float | None = None) -> str:

@@ -106,7 +106,7 @@ def test_compare_md_holding_another_comparison_is_not_replaced_silently(runs, tm
     r = run_fviz("compare", "--out-dir", tmp_path, "--a", "8point", "--b", "magsac", "--force")
     assert r.returncode == 0 and f"{md} (replaced the previous version)" in r.stderr
     assert md.read_text() == (tmp_path / "other.md").read_text()
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["compare.md", "metrics.csv", "other.md"]  # no temporaries left
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["compare.md", "compare.rrd", "metrics.csv", "other.md", "other.rrd"]  # no temporaries left
 
 
 @pytest.mark.parametrize("args, fragment", [
@@ -200,7 +200,7 @@ def test_wilcoxon_normal_approximation_matches_its_closed_form():
 
 def test_each_metric_fails_by_its_own_rule_named_in_the_table(runs):
     """Issue 28 §2: one threshold (2.0) for every metric said "both fail 49/49" of inlier ratios and never failed NSGD.
-    Each metric now has its own rule (fviz.verdicts), named wherever fails are counted; "failed" (no value, eval's
+    Each metric now has its own rule (fviz.verdicts), named wherever fails are counted; an "error" (no value, eval's
     count) stays apart from "fails" (the metric's verdict)."""
     from fviz import triage
     from fviz.verdicts import FAIL_RULES, fails_label
@@ -216,10 +216,10 @@ def test_each_metric_fails_by_its_own_rule_named_in_the_table(runs):
         bad = lambda v, e: bool(e) or not math.isfinite(v) or (v < thr if hb else v > thr)  # noqa: E731
         assert len(c.both_fail) == sum(bad(*va[n]) and bad(*vb[n]) for n in va)
         assert len(c.only_a_fails) == sum(bad(*va[n]) and not bad(*vb[n]) for n in va)
-        assert c.a_failed == [n for n in va if va[n][1] or not math.isfinite(va[n][0])]
+        assert c.a_errors == [n for n in va if va[n][1] or not math.isfinite(va[n][0])]
         rows = dict(summary_rows(c))
         assert f"only magsac of a fails ({label})" in rows and f"both fail ({label})" in rows
-        assert rows["magsac of a failed (no value)"] == str(len(c.a_failed))
+        assert rows["magsac of a: errors (no F or no value)"] == str(len(c.a_errors))
     # inlier ratios of a working estimator do not all "fail"; the rule is the triage's low-inliers and matcher blame
     assert len(compare(Side(a, "magsac"), Side(b, "magsac"), "inlier_ratio").both_fail) < 9
     assert triage.LOW_INLIER_RATIO == FAIL_RULES["inlier_ratio"].threshold
@@ -248,3 +248,45 @@ def test_the_run_folder_is_given_one_way_everywhere(runs, tmp_path):
     r = run_fviz("compare", run, "--out-dir", a, "--a", "magsac", "--b", "8point")
     assert_one_line_error(r, 2, f"{run} and --out-dir {a}: two run folders")
     assert_one_line_error(run_fviz("table"), 2, "table: give the run folder, as RUN or --out-dir RUN")
+
+
+def index_of(run):
+    with open(run / "metrics.csv", newline="") as f:
+        return {r["name"]: int(r["index"]) for r in csv.DictReader(f)}
+
+
+def test_listed_pairs_say_where_they_sit_how_to_reopen_them_and_are_plotted(runs, tmp_path):
+    """Issue "screens round two" §6: compare lists each pair where only one side fails with its `fviz inspect pair`
+    command, says whether those pairs are one stretch of consecutive frames, and writes compare.rrd beside
+    compare.md: both sides' values per pair and the one-sided fails, as the CSV has them."""
+    from fviz.record.reader import column, text
+
+    a, _ = runs
+    out = tmp_path / "pose.md"
+    r = invoke("compare", "--out-dir", a, "--a", "magsac", "--b", "8point", "--metric", "pose_err_deg", "--out", out)
+    assert f"{tmp_path / 'pose.rrd'}" in r.output
+    va, vb, index = values(a, "magsac", "pose_err_deg"), values(a, "8point", "pose_err_deg"), index_of(a)
+    bad = lambda v, e: bool(e) or not v <= 10.0  # noqa: E731 (pose_err_deg's rule)
+    only_b = sorted((n for n in va if bad(*vb[n]) and not bad(*va[n])), key=index.get)
+    assert only_b, "8-point on ORB matches should fail some pose the robust estimator gets"
+    section = out.read_text().split("## Only 8point fails")[1].split("## Per pair")[0]
+    rows = [line for line in section.splitlines() if line.startswith("| `")]
+    assert [line.split("`")[1] for line in rows] == only_b
+    for line, name in zip(rows, only_b):
+        frame = int(name.rpartition("/f")[2][:6])  # odometry/00/temporal/f000003c0-f000004c0
+        assert ("`fviz inspect pair --kitti-root " in line and f"--sequence 00 --frame {frame} --pair temporal" in line
+                and "-e 8point -e magsac" in line), line
+    # the stretches of consecutive pairs, from the CSV's indices
+    idx = [index[n] for n in only_b]
+    breaks = sum(j != i + 1 for i, j in zip(idx, idx[1:]))
+    expected = ("consecutive: one stretch of the sequence" if breaks == 0 else f"in {breaks + 1} stretches of consecutive pairs")
+    assert len(only_b) < 2 or expected in section, section
+    # compare.rrd: the values per pair of the run, in the run's order, and which side alone fails
+    rrd = tmp_path / "pose.rrd"
+    pairs = column(rrd, "compare/pairs", "pairs")[0]
+    assert pairs == sorted(va, key=index.get)
+    for side, vals in (("a", va), ("b", vb)):
+        got = column(rrd, "compare/pairs", side)[0]
+        assert got == pytest.approx([vals[n][0] for n in pairs], rel=1e-6, nan_ok=True)
+    assert [n for n, f in zip(pairs, column(rrd, "compare/pairs", "only_b_fails")[0]) if f] == only_b
+    assert text(rrd, "compare/text")[0] == out.read_text()

@@ -53,7 +53,7 @@ def test_eval_records_the_estimator_needing_K_as_its_failure_and_goes_on(images,
     assert errors["colmap"] is None
     assert errors["poselib-E"].startswith("poselib-E needs the cameras' intrinsics K") and "\n" not in errors["poselib-E"]
     summary = json.loads((out / "summary.json").read_text())["estimators"]
-    assert summary["poselib-E"]["failed"] == 1 and summary["colmap"]["failed"] == 0
+    assert summary["poselib-E"]["errors"] == 1 and summary["colmap"]["errors"] == 0
 
 
 def test_a_pair_without_ground_truth_whose_every_estimator_fails_is_still_recorded(tmp_path):

@@ -31,8 +31,8 @@ def test_causes_leave_out_what_varies_between_pairs():
     assert cause("ahead needs K: give --K (or --K-a and --K-b)") == "ahead needs K: give --K (or --K-a and --K-b)"
     recs = [{"key": f"p{i}", "error": f"image b /x/{i}.png: no such file" if i else None,
              "result": {"estimators": [{"name": "ahead", "error": "needs K (give --K)"}]}} for i in range(3)]
-    assert failure_lines(failures_of(recs)) == ["2 pairs failed: image b /x/1.png: no such file (e.g. p1)",
-                                                "ahead failed 1/1 pairs: needs K (give --K) (e.g. p0)"]
+    assert failure_lines(failures_of(recs)) == ["2 pairs not evaluated (error): image b /x/1.png: no such file (e.g. p1)",
+                                                "ahead: error (no F) on 1/1 pairs: needs K (give --K) (e.g. p0)"]
 
 
 def test_eval_and_triage_end_with_the_failures_grouped_by_cause(kitti_root, tmp_path):
@@ -48,8 +48,8 @@ def test_eval_and_triage_end_with_the_failures_grouped_by_cause(kitti_root, tmp_
     r = run_fviz("eval", "--pairs", pairs, "--images", images, "-e", "ahead", "-e", "magsac", *FAST, "--out-dir", out,
                  timeout=300)
     assert r.returncode == 0, r.stderr
-    expected = [f"2 pairs failed: image b {images}/7.png: no such file (e.g. pairs/pairs/0.png--7.png)",
-                "ahead failed 1/1 pairs: ahead needs the cameras' intrinsics K, which this pair lacks: give --K (or "
+    expected = [f"2 pairs not evaluated (error): image b {images}/7.png: no such file (e.g. pairs/pairs/0.png--7.png)",
+                "ahead: error (no F) on 1/1 pairs: ahead needs the cameras' intrinsics K, which this pair lacks: give --K (or "
                 "--K-a and --K-b), or use a source with intrinsics (KITTI, a pairs file with K, a COLMAP model) "
                 "(e.g. pairs/pairs/0.png--1.png)"]
     assert r.stderr.strip().splitlines()[-2:] == expected, r.stderr
@@ -70,7 +70,7 @@ def test_a_user_estimator_failing_on_some_pairs_is_one_cause(kitti_root, tmp_pat
                  "-e", "./flaky.py:fn", "-e", "ransac", *FAST, "--out-dir", out, cwd=tmp_path, timeout=300)
     assert r.returncode == 0, r.stderr
     last = r.stderr.strip().splitlines()[-1]
-    assert last == ("fn failed 2/3 pairs: ValueError: frame 1 is too hard for me "
+    assert last == ("fn: error (no F) on 2/3 pairs: ValueError: frame 1 is too hard for me "
                     "(e.g. odometry/00/temporal/f000001c0-f000002c0)"), r.stderr
     doc = json.loads((out / "summary.json").read_text())["failures"]
     assert doc["pairs"] == [] and [g["cause"] for g in doc["estimators"]] == ["ValueError: frame … is too hard for me"]

@@ -34,5 +34,5 @@ def test_without_ground_truth_points_the_pose_is_undefined_not_failed(kitti_root
                     "--eval-threshold", "1e-4", "-e", "magsac", "--workers", "1", "--no-progress", "--out-dir", out, timeout=600)
     assert proc.returncode == 0, proc.stderr
     fig = json.loads((out / "summary.json").read_text())["estimators"]["magsac"]
-    assert fig["failed"] == 0 and fig["pose_undefined"] == 2 and fig["pose_pairs"] == 0
+    assert fig["errors"] == 0 and fig["pose_undefined"] == 2 and fig["pose_pairs"] == 0
     assert "Pose undefined" in (out / "summary.md").read_text()

@@ -76,6 +76,12 @@ def test_two_images_without_ground_truth(tmp_path):
     assert ag["names"] == names and np.allclose(M, M.T) and np.all(np.diag(M) == 0)
     # the two robust estimators agree with each other far better than with the 8-point fit on all matches
     assert M[1, 2] < M[0, 1] and M[1, 2] < M[0, 2]
+    # agreement_nsgd: the NSGD to the closest other F (a median over the others hid that two agree); the groups
+    # join the estimators whose NSGD is under the threshold
+    for i, e in enumerate(doc["estimators"]):
+        assert e["metrics"]["agreement_nsgd"] == pytest.approx(np.delete(M[i], i).min())
+    assert ag["threshold"] == 0.05 and sorted(n for g in ag["groups"] for n in g) == sorted(names)
+    assert any({"ransac", "magsac"} <= set(g) for g in ag["groups"]) == (M[1, 2] < 0.05 or max(M[0, 1], M[0, 2]) < 0.05)  # chained through 8point
     assert "no ground truth" in proc.stderr
     summary = text(out, L.SUMMARY)[0]
     assert "no ground truth" in summary and "NSGD between the estimators" in summary
@@ -131,7 +137,7 @@ def test_eval_runs_the_lines_of_a_pairs_file(tmp_path):
         F_ref = closed_form_F(strecha_projection(name0), strecha_projection(name1))
         assert same_up_to_sign(r["result"]["F_gt"], F_ref, 1e-6)
     summary = json.loads((tmp_path / "run" / "summary.json").read_text())
-    assert summary["pairs"] == 2 and summary["estimators"]["magsac"]["failed"] == 0
+    assert summary["pairs"] == 2 and summary["estimators"]["magsac"]["errors"] == 0
 
 
 @pytest.mark.parametrize("line, fragment", [

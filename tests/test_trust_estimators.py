@@ -55,7 +55,7 @@ def test_misbehaving_estimators_are_recorded_in_eval(tmp_path):
     r = fviz("eval", "--synthetic", "--seeds", "0:1", *specs, "-e", "8point", *FAST, "--workers", "1", "--no-progress",
              "--estimator-timeout", "3", "--out-dir", out)
     assert r.returncode == 0, r.stderr
-    assert "1 pairs (0 already done, 1 evaluated now, 0 failed" in r.stderr
+    assert "1 pairs (0 already done, 1 evaluated now, 0 not evaluated (pair errors)" in r.stderr
     errors = {row["estimator"]: row["error"] for row in read_csv(out / "metrics.csv")}
     assert errors["exits"] == "SystemExit: called exit(3)" and errors["interrupts"].startswith("KeyboardInterrupt")
     assert errors["hangs"] == "timed out after 3 s (--estimator-timeout)"

@@ -282,6 +282,6 @@ def test_the_default_stereo_selection_uses_only_frames_every_camera_has(kitti_ro
     out = tmp_path / "run"
     r = ok("eval", "--kitti-root", kitti_root, "--sequence", "00", "-e", "8point", *FAST, "--out-dir", out)
     assert "image_1 of 00 has frames 0..0 only: the 49 later frames" in r.stderr
-    assert "1 pairs (0 already done, 1 evaluated now, 0 failed" in r.stderr
+    assert "1 pairs (0 already done, 1 evaluated now, 0 not evaluated (pair errors)" in r.stderr
     figures = json.loads((out / "summary.json").read_text())
-    assert figures["pairs"] == 1 and figures["estimators"]["gt"]["failed"] == 0
+    assert figures["pairs"] == 1 and figures["estimators"]["gt"]["errors"] == 0

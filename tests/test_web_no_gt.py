@@ -2,7 +2,8 @@
 images (``--image-a`` / ``--image-b``, no K, no pose), so fviz knows no ground truth. A person checks that both
 frames are there with the estimators' lines over them (the reference estimator's colour), that no white
 ground-truth line is drawn anywhere on them, that the comparison chart has a bar per estimator and none for a
-ground truth, and that the view says "no ground truth". Screenshots are saved under the test's tmp dir."""
+ground truth, that its agreement matrix is green where two estimators agree and red where not, that the summary
+says which agree, and that the view says "no ground truth". Screenshots are saved under the test's tmp dir."""
 
 from __future__ import annotations
 
@@ -48,7 +49,7 @@ def no_gt(kitti_root, tmp_path_factory):
 
 
 def test_no_ground_truth_overview_shows_the_estimators_and_no_ground_truth(no_gt, tmp_path):
-    from fviz.record.reader import _blueprint_fields, blueprint_tabs, open_rrd
+    from fviz.record.reader import _blueprint_fields, blueprint_tabs, open_rrd, text
 
     recording, doc, frames = no_gt
     assert doc["F_gt"] is None and [e["name"] for e in doc["estimators"]] == list(ESTIMATORS)
@@ -73,6 +74,26 @@ def test_no_ground_truth_overview_shows_the_estimators_and_no_ground_truth(no_gt
     for name in ESTIMATORS[1:]:  # 8point's bar sits under each metric's header label (tinted): not measured
         assert runs[name] > 40, f"no {name} bar in the comparison chart: {runs}; {shot.context}"
     assert runs["white"] < 20, f"a white (ground-truth) bar in the comparison chart: {runs}; {shot.context}"
+    # screens round two §5: the agreement matrix, a cell per two estimators, green where their NSGD < 0.05, red
+    # where not; the areas of the two colours follow the numbers of agreeing and differing cells of the JSON's matrix
+    M = np.array(doc["agreement"]["matrix"])
+    off = ~np.eye(len(M), dtype=bool)
+    agree, differ = int((off & (M < 0.05)).sum()), int((off & (M >= 0.05)).sum())
+    green, red = (int(near(chart, c, 30).sum()) for c in (L.AGREE_COLOR, L.DIFFER_COLOR))
+    print(f"agreement matrix: {agree} agreeing and {differ} differing cells; green {green} px, red {red} px")
+    assert (green > 300) == (agree > 0) and (red > 300) == (differ > 0), f"{green=} {red=}; {shot.context}"
+    if agree and differ:
+        assert 0.4 < (green / red) / (agree / differ) < 2.5, f"{green=} {red=} for {agree}:{differ}; {shot.context}"
+    # the summary beside it says which agree, with the number behind it (from the JSON's matrix, here)
+    summary = text(recording, L.SUMMARY)[0]
+    for i, j in zip(*np.triu_indices(len(M), 1)):
+        a, b = ESTIMATORS[i], ESTIMATORS[j]
+        if M[i, j] < 0.05 and len(M) == 3:
+            assert f"{a} and {b} agree (NSGD {M[i, j]:.2g})" in summary, summary[:400]
+    assert agree or "no two estimators agree" in summary, summary[:400]
+    for k, name in enumerate(ESTIMATORS):
+        if agree and (M[k][off[k]] >= 0.05).all():
+            assert f"{name} differs (NSGD >= {M[k][off[k]].min():.2g} to each other F)" in summary, summary[:400]
     # the title the screen shows above the images: the notice (rendered text is not OCR'd: read from the file)
     titles = list(blueprint_tabs(recording))
     assert titles[0] == "overview", titles

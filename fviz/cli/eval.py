@@ -212,7 +212,7 @@ def print_outcome(outcome, what: str = "eval") -> None:
 
     err = sys.stderr
     print(f"{what}: {outcome.total} pairs ({outcome.reused} already done, {outcome.computed} evaluated now, "
-          f"{outcome.failed} failed, {outcome.detections} feature detections, {outcome.cached_features} images' "
+          f"{outcome.failed} not evaluated (pair errors), {outcome.detections} feature detections, {outcome.cached_features} images' "
           f"features read from the run's {FEATURES_FILE}) -> {outcome.out_dir}", file=err)
     for note, n in outcome.cache_notes.items():
         print(f"note: {outcome.out_dir}/{note}" + (f" ({n} times)" if n > 1 else ""), file=err)
@@ -276,6 +276,7 @@ def print_figures(out_dir: Path) -> None:
     from rich.table import Table
 
     from fviz.run.config import SUMMARY_JSON
+    from fviz.verdicts import ERRORS, fails_column
 
     path = Path(out_dir) / SUMMARY_JSON
     if not path.is_file():
@@ -284,12 +285,13 @@ def print_figures(out_dir: Path) -> None:
     fmt = lambda v: "n/a" if v is None else f"{v:.3g}"  # noqa: E731
     t = Table(title=f"{doc['selection']}: {doc['pairs']} pairs")
     first = next(iter(doc["estimators"].values()), {"pose_auc": {}})
-    for c in ["estimator", *(f"AUC@{k}°" for k in first["pose_auc"]), "NSGD recall", "med SED px", "med Sampson px", "failed (no F)"]:
+    for c in ["estimator", *(f"AUC@{k}°" for k in first["pose_auc"]), "NSGD recall", "med SED px", "med Sampson px", ERRORS, fails_column()]:
         t.add_column(c, justify="left" if c == "estimator" else "right")
     for name, f in doc["estimators"].items():
         t.add_row(name + (" (oracle)" if f["oracle"] else ""), *(fmt(v) for v in f["pose_auc"].values()),
-                  fmt(f["nsgd_recall"]), fmt(f["sed_median"]), fmt(f["sampson_median"]), f"{f['failed']}/{f['pairs']}")
-    Console(width=max(Console().width, 120)).print(t)
+                  fmt(f["nsgd_recall"]), fmt(f["sed_median"]), fmt(f["sampson_median"]), f"{f['errors']}/{f['pairs']}",
+                  f"{f['fails']}/{f['pairs']}")
+    Console(width=max(Console().width, 150)).print(t)
 
 
 def eval_(args: RunArgs, resume: Resume = False) -> None:

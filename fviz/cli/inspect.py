@@ -146,7 +146,7 @@ def _check_viewer(spawn: bool, web: bool, bind: str, port: int, web_port: int) -
 TABLE_COLUMNS = (("sed_median", "SED px"), ("sampson_median", "Sampson px"), ("rot_err_deg", "rot °"),
                  ("trans_err_deg", "trans °"), ("nsgd", "NSGD"), ("inlier_ratio", "inliers"),
                  ("epipole_err_deg", "epipole °"), ("epi_abs", "EPI-ABS"), ("epi_sqr", "EPI-SQR"),
-                 ("agreement_nsgd", "NSGD to others"))
+                 ("agreement_nsgd", "NSGD to closest"))
 TABLE_CAPTION = ("SED / Sampson px: medians over the evaluation matches; rot / trans / epipole °: errors of the recovered "
                  "rotation, translation direction and epipole; NSGD: FM-Bench's normalized distance to F_gt; inliers: "
                  "share of all matches; time s: the estimator's run time. Every metric: --json.")
@@ -171,8 +171,10 @@ def _print_table(result, path: Path, verdict: str) -> None:
     console = Console(width=max(Console().width, 130))
     console.print(t)
     if not result.has_gt:
+        from fviz.evaluate import agreement_text
+
         console.print("no ground truth: the estimators are compared with each other (SED and inliers over all "
-                      "matches; agreement_nsgd = median NSGD to the other estimators)")
+                      f"matches; agreement_nsgd = NSGD to the closest other estimator): {agreement_text(result.agreement)}")
     from fviz.record.writer import precision_lines
 
     for line in precision_lines(result.match_precision)[1:]:

@@ -68,7 +68,7 @@ def _print_ranking(result, metric: str, top: int) -> None:
     for c in ("rank", "pair", metric, "tags"):
         t.add_column(c, justify="right" if c in ("rank", metric) else "left")
     for r in result.ranked[:top]:
-        t.add_row(str(r.rank), r.key, "failed" if r.failed else f"{r.value:.4g}", ", ".join(x for x, _ in r.tags))
+        t.add_row(str(r.rank), r.key, "error" if r.failed else f"{r.value:.4g}", ", ".join(x for x, _ in r.tags))
     console = Console(width=max(Console().width, 140))
     console.print(t)
     console.print(f"{result.markdown}\n{result.recording}")
@@ -95,7 +95,8 @@ def compare(
     force: Annotated[bool, typer.Option("--force", help="Replace an existing file that holds another comparison.")] = False,
 ) -> None:
     """Wins, losses and ties of estimator a against b pair by pair, Wilcoxon's signed-rank test of the differences,
-    the pairs where only one of them fails, and every pair's difference (compare.md)."""
+    the pairs where only one of them fails (where they sit in the run, the command reopening each), and every
+    pair's difference (compare.md); compare.rrd beside it plots both per pair."""
     from fviz.compare import COMPARE_FILE, Side, compare as run_compare, write_compare
     out_dir = one_run_folder(run, out_dir)
     if run_a or run_b:
@@ -125,7 +126,10 @@ def _print_comparison(c, path: Path, replaced: bool) -> None:
     for what, n in summary_rows(c):
         t.add_row(what, n)
     Console().print(t)
+    from fviz.compare import recording_path
+
     print(f"{path} (replaced the previous version)" if replaced else path, file=sys.stderr)
+    print(f"{recording_path(path)} (the per-pair plot: fviz open {recording_path(path)})", file=sys.stderr)
 
 
 def register(app: typer.Typer) -> None:

@@ -204,13 +204,16 @@ COMPARED_METRICS = (
     ("rot_err_deg", "rotation error (deg)"),
     ("trans_err_deg", "translation error (deg)"),
     ("nsgd", "NSGD (FM-Bench)"),
-    ("agreement_nsgd", "NSGD to the other estimators (no ground truth)"),
+    ("agreement_nsgd", "NSGD between the estimators (green: < 0.05, they agree)"),  # a matrix (no ground truth)
 )
 GT_ONLY_METRICS = ("rot_err_deg", "trans_err_deg", "nsgd")  # need a ground truth; agreement_nsgd is without one
 # one row (a title or a bar) per BAR_PITCH: Rerun's labels are ~18 screen px high, so a row must stay >= 19 px
 BAR_WIDTH, BAR_PITCH, BAR_HEAD, BAR_LABEL_X = 300.0, 30.0, 30.0, 450.0
 LABEL_DROP = 0.5 * BAR_PITCH  # Rerun draws a point's label below the point: the chart's label points sit this much higher
 CDF_H = 70.0  # the residual CDF below the bars
+# No ground truth: the chart's NSGD between every two estimators, one cell each (green: they agree)
+AGREE_COLOR, DIFFER_COLOR, SAME_COLOR = (40, 170, 80), (190, 60, 50), (70, 70, 76)
+MATRIX_NAMES_W = 130.0  # the row names' column, left of the cells
 CHART_BACKGROUND = (32, 32, 36)  # charts and plots: dark, so that the ground truth's white shows in any theme
 
 
@@ -221,7 +224,8 @@ def compared_metrics(gt: bool) -> tuple[tuple[str, str], ...]:
 
 def compare_height(n_bars: int, gt: bool = True) -> float:
     """Height of the comparison chart with the metrics of :func:`compared_metrics` and ``n_bars`` F's."""
-    return len(compared_metrics(gt)) * (BAR_HEAD + (n_bars + 0.5) * BAR_PITCH) + BAR_HEAD + CDF_H + 30.0
+    matrix_header = 0.0 if gt else BAR_PITCH  # without ground truth the agreement matrix has a row of column names
+    return len(compared_metrics(gt)) * (BAR_HEAD + (n_bars + 0.5) * BAR_PITCH) + matrix_header + BAR_HEAD + CDF_H + 30.0
 # Metric series of a run (``metrics/{key}``), one per F, with their titles. f_dist is left out: it misranks
 # (docs/metrics.md).
 SERIES_METRICS = ("sed_median", "rot_err_deg", "trans_err_deg", "nsgd", "epipole_err_deg", "inlier_ratio")
@@ -567,6 +571,23 @@ def curves_tab(n_series: int):
 
 
 VERDICT_SHARE = 13  # the tabs' height below the verdict's (1)
+# compare.rrd (``fviz compare``): the metric of both sides per pair of the run, drawn in 2D (y down), and compare.md
+COMPARE_PAIRS = "compare/pairs"
+COMPARE_LEGEND = "compare/legend"
+COMPARE_TEXT = "compare/text"
+COMPARE_W, COMPARE_H = 1000.0, 360.0  # the plot's axes, in 2D units
+
+
+def compare_blueprint(title: str):
+    """compare.rrd's layout: the per-pair plot (its legend below it) beside compare.md."""
+    import rerun.blueprint as rrb
+
+    bounds = rrb.VisualBounds2D(x_range=[-90.0, COMPARE_W + 40.0], y_range=[-70.0, COMPARE_H + 150.0])
+    plot = rrb.Spatial2DView(origin="compare", contents=[f"+ {COMPARE_PAIRS}/**", f"+ {COMPARE_LEGEND}"], name=title,
+                             background=CHART_BACKGROUND, visual_bounds=bounds)
+    text = rrb.TextDocumentView(origin=COMPARE_TEXT, name="compare.md")
+    return rrb.Blueprint(rrb.Horizontal(plot, text, column_shares=[5, 2]), rrb.TimePanel(state="hidden"),
+                         collapse_panels=True)
 
 
 def blueprint(names: Sequence[str], sizes: tuple[tuple[int, int], tuple[int, int]] | None, single_pair: bool, head: bool = False,

@@ -23,7 +23,7 @@ import numpy as np
 from fviz.data.pair import Pair
 from fviz.diagnose import GT_SUSPECT_NOTE
 from fviz.errors import FvizError
-from fviz.evaluate import PairResult
+from fviz.evaluate import PairResult, agreement_text
 from fviz.estimators.registry import is_baseline
 from fviz.geometry import (
     AUC_THRESHOLDS_DEG, NSGD_RECALL_THRESHOLD, border_point, clip_lines, describe_epipole, epipoles, lines_in_a, lines_in_b,
@@ -347,7 +347,7 @@ def _fmt(v: float | None, digits: int = 3) -> str:
 
 
 SUMMARY_COLUMNS = (("sed_median", "SED px"), ("rot_err_deg", "rot °"), ("trans_err_deg", "trans °"),
-                   ("nsgd", "NSGD"), ("inlier_ratio", "inliers"), ("agreement_nsgd", "NSGD to others"))
+                   ("nsgd", "NSGD"), ("inlier_ratio", "inliers"), ("agreement_nsgd", "NSGD to closest"))
 
 _GROUND_TRUTH = {"pose": "the relative pose", "F": "a given F", "correspondences": "F fitted to the ground-truth correspondences"}
 
@@ -363,8 +363,8 @@ def _pair_sentence(result: PairResult) -> str:
     gt = p.get("ground_truth", "none")
     if gt == "none":
         return head + (f"**no ground truth**: the estimators are compared with each other. {result.n_matches} matches; "
-                       "SED and inliers are over all of them, *NSGD to others* is the median NSGD of an F to the "
-                       "other estimators' (table below). No GT-based metric is computed.")
+                       "SED and inliers are over all of them, *NSGD to closest* is the NSGD of an F to the closest "
+                       "other estimator's (every two: table below). No GT-based metric is computed.")
     if result.eval_points == "gt-matches":
         where = f"{result.n_eval} ground-truth correspondences (the evaluation matches)"
     else:
@@ -407,7 +407,9 @@ def pair_markdown(result: PairResult, probe_steps: int = 0) -> str:
     lines += ["", _pair_sentence(result), *precision_lines(result.match_precision), ""]
     if result.agreement:
         names = result.agreement["names"]
-        lines += ["NSGD between the estimators (0 = the same epipolar geometry, FM-Bench's measure):", "",
+        lines += [f"**{agreement_text(result.agreement)}**", "",
+                  f"NSGD between the estimators (0 = the same epipolar geometry, FM-Bench's measure; below "
+                  f"{result.agreement.get('threshold', NSGD_RECALL_THRESHOLD):g} they agree):", "",
                   "| | " + " | ".join(names) + " |", "|---|" + "--:|" * len(names)]
         lines += [f"| {a} | " + " | ".join(_fmt(v) for v in row) + " |" for a, row in zip(names, result.agreement["matrix"])]
         lines.append("")
@@ -575,6 +577,9 @@ def log_comparison(rec, result: PairResult, colors: Colors) -> None:
         values = [np.nan if r.error else float(r.metrics.get(key, np.nan)) for r in result.estimators]
         if not any(np.isfinite(values)):
             continue
+        if key == "agreement_nsgd" and result.agreement:
+            y = _agreement_matrix(result.agreement, title, y, bars, bar_colors, bar_radii, points, labels)
+            continue
         points.append((width / 2, y - L.LABEL_DROP))
         labels.append(title + " (log scale)")
         y += head
@@ -584,7 +589,7 @@ def log_comparison(rec, result: PairResult, colors: Colors) -> None:
             bars.append([(0.0, y), (max(length, 0.5), y)])
             bar_colors.append(_rgb(colors[r.name]))
             bar_radii.append(pitch / 3)
-            text = f"{r.name}: {'failed' if r.error else _fmt(v)}"
+            text = f"{r.name}: {'error' if r.error else _fmt(v)}"
             points.append((max(length, 0.5) + 12.0 + 4.2 * len(text), y - L.LABEL_DROP))  # centred on its point
             labels.append(text)
             y += pitch
@@ -609,6 +614,35 @@ def log_comparison(rec, result: PairResult, colors: Colors) -> None:
     # label carries the colour
     rec.log(L.COMPARE, rr.LineStrips2D(bars, colors=bar_colors, radii=bar_radii),
             rr.Points2D(points, radii=0.1, colors=[(255, 255, 255)], labels=labels, show_labels=True))
+
+
+def _agreement_matrix(ag: dict, title: str, y: float, bars: list, bar_colors: list, bar_radii: list, points: list,
+                      labels: list) -> float:
+    """The comparison chart's agreement matrix (no ground truth), appended to its strips and labels from ``y``
+    down: a cell per two estimators with their NSGD, green where they agree (< the threshold), red where not.
+    -> the y below it."""
+    names, m = ag["names"], np.asarray(ag["matrix"], float)
+    pitch, x0 = L.BAR_PITCH, L.MATRIX_NAMES_W
+    cell = min(100.0, (L.BAR_LABEL_X + 80.0 - x0) / len(names))
+    points.append(((L.BAR_LABEL_X + 90.0 - 2 * pitch) / 2, y - L.LABEL_DROP))  # the middle of the chart's view
+    labels.append(title)
+    y += L.BAR_HEAD
+    for j, name in enumerate(names):  # the column names
+        points.append((x0 + (j + 0.5) * cell, y - L.LABEL_DROP))
+        labels.append(name)
+    for i, name in enumerate(names):
+        y += pitch
+        points.append((x0 / 2, y - L.LABEL_DROP))
+        labels.append(name)
+        for j in range(len(names)):
+            bars.append([(x0 + j * cell + 6.0, y), (x0 + (j + 1) * cell - 6.0, y)])
+            agree = m[i, j] < ag.get("threshold", NSGD_RECALL_THRESHOLD)
+            bar_colors.append(_rgb(L.SAME_COLOR if i == j else L.AGREE_COLOR if agree else L.DIFFER_COLOR))
+            bar_radii.append(0.45 * pitch)
+            if i != j:
+                points.append((x0 + (j + 0.5) * cell, y - L.LABEL_DROP))
+                labels.append(_fmt(m[i, j], 2))
+    return y + 1.5 * pitch
 
 
 def log_pair_text(rec, result: PairResult, text: str | None = None) -> None:

@@ -18,6 +18,7 @@ from fviz.data.pair import PairId
 from fviz.errors import FvizError, Interrupted
 from fviz.diagnose import gt_bias, pair_epipole_offset
 from fviz.failures import Failures, failure_markdown
+from fviz.verdicts import ERRORS, fail_rule, fails_column
 from fviz.evaluate import GT_NAME, PairResult
 from fviz.run.config import _FLAGS, _flatten, _show  # noqa: E402  (a refused merge names the flags)
 from fviz.run.config import (
@@ -226,12 +227,12 @@ def summary_markdown(config: RunConfig, stats: _Stats) -> str:
         "# fviz eval",
         "",
         f"{config.selection.describe()}" + (f", shard {config.shard[0]}/{config.shard[1]}" if config.shard else "") + ".",
-        f"{stats.pairs} pairs ({stats.pair_errors} failed as a whole); features {o.features} (max {o.max_keypoints}, ratio {o.ratio}"
+        f"{stats.pairs} pairs ({stats.pair_errors} not evaluated: pair errors); features {o.features} (max {o.max_keypoints}, ratio {o.ratio}"
         f"{', mutual' if o.mutual else ''}); robust threshold {o.threshold} px; " + (
             "**no ground truth**: residuals over all matches, the estimators compared with each other (agreement_nsgd)."
             if stats.ground_truth == {"none"} else f"evaluation matches: GT symmetric epipolar distance < {config.eval_threshold} px."),
         f"EPI-ABS / EPI-SQR (`epi_abs`, `epi_sqr`) are per-pair **means** over the evaluation matches, on F normalized by "
-        f"**{config.norm.upper()}**; distances in px. Statistics below are over the pairs where the estimator succeeded.",
+        f"**{config.norm.upper()}**; distances in px. Statistics below are over the pairs where the estimator gave an F.",
         "",
         *failure_markdown(stats.failures.document()),
         *([f"**{stats.gt_bias['text'][0].upper()}{stats.gt_bias['text'][1:]}.**", ""] if stats.gt_bias else []),
@@ -242,7 +243,7 @@ def summary_markdown(config: RunConfig, stats: _Stats) -> str:
         "## Per estimator",
     ]
     for key in SUMMARY_METRICS:
-        lines += ["", f"### {key}", "", "| estimator | ok | failed | mean | median | " + " | ".join(f"p{p}" for p in PERCENTILES) + " |",
+        lines += ["", f"### {key}", "", f"| estimator | ok | {ERRORS} | mean | median | " + " | ".join(f"p{p}" for p in PERCENTILES) + " |",
                   "|---|---|---|---|---|" + "---|" * len(PERCENTILES)]
         for est in ests:
             v = stats.get(est, key)
@@ -367,7 +368,8 @@ def standard_figures(per_pair: dict[str, Iterable[float]], order: Iterable[str] 
                      known: dict[str, bool] | None = None,
                      pair_gt: dict[str, list[str]] | None = None,
                      failures: dict[str, int] | None = None) -> dict[str, dict[str, Any]]:
-    """Per estimator, from its per-pair FIGURE_KEYS (flat, NaN = failed): pairs, failed, pose AUC@5/10/20 of
+    """Per estimator, from its per-pair FIGURE_KEYS (flat, NaN = no value): pairs, errors (no F), fails (of
+    ``sed_median``, :mod:`fviz.verdicts`: past 2 px or no value, as compare counts them), pose AUC@5/10/20 of
     pose_err_deg (LightGlue's pose_auc; failures infinite), nsgd_recall (share of pairs with nsgd <
     NSGD_RECALL_THRESHOLD; failures miss), medians of the per-pair sed_median and sampson_median over the
     pairs that succeeded, and whether it is an oracle. ``known``: {"pose", "nsgd"} -> whether the pairs'
@@ -380,11 +382,13 @@ def standard_figures(per_pair: dict[str, Iterable[float]], order: Iterable[str] 
     from fviz.estimators.registry import is_oracle
     from fviz.geometry import AUC_THRESHOLDS_DEG, NSGD_RECALL_THRESHOLD, pose_auc
 
+    sed_rule = fail_rule("sed_median")
+
     out = {}
     for est in order or per_pair:
         v = np.asarray(per_pair.get(est, []), np.float64).reshape(-1, len(FIGURE_KEYS))
         pose, nsgd_, sed, samp = v.T
-        failed = int(np.isnan(sed).sum()) if failures is None else failures.get(est, 0)
+        errors = int(np.isnan(sed).sum()) if failures is None else failures.get(est, 0)
         kinds = (pair_gt or {}).get(est)
         has_pose = np.ones(len(v), bool) if kinds is None or len(kinds) != len(v) else np.array([k == "pose" for k in kinds], bool)
         has_gt = np.ones(len(v), bool) if kinds is None or len(kinds) != len(v) else np.array([k != "none" for k in kinds], bool)
@@ -392,7 +396,7 @@ def standard_figures(per_pair: dict[str, Iterable[float]], order: Iterable[str] 
         with np.errstate(invalid="ignore"):
             recall = float(np.mean(np.nan_to_num(nsgd_, nan=np.inf) < NSGD_RECALL_THRESHOLD)) if len(nsgd_) else math.nan
         out[est] = {
-            "pairs": len(v), "failed": failed, "pose_pairs": int(has_pose.sum()), "gt_pairs": int(has_gt.sum()),
+            "pairs": len(v), "errors": errors, "fails": int(sum(sed_rule.fails(x) for x in sed)), "pose_pairs": int(has_pose.sum()), "gt_pairs": int(has_gt.sum()),
             "pose_undefined": 0 if kinds is None else sum(k == "pose-undefined" for k in kinds),
             "pose_auc": {f"{t:g}": a if known["pose"] else math.nan for t, a in zip(AUC_THRESHOLDS_DEG, pose_auc(pose))},
             "nsgd_recall": recall if known["nsgd"] else math.nan,
@@ -410,14 +414,14 @@ def figures_markdown(figures: dict[str, dict[str, Any]]) -> list[str]:
     aucs = next(iter(figures.values()), {}).get("pose_auc", {})
     lines = [
         "| estimator | " + " | ".join(f"AUC@{t}°" for t in aucs) + f" | NSGD recall (<{NSGD_RECALL_THRESHOLD:g}) | "
-        "median SED px | median Sampson px | failed (no F) |",
-        "|---|" + "---|" * (len(aucs) + 4),
+        f"median SED px | median Sampson px | {ERRORS} | {fails_column()} |",
+        "|---|" + "---|" * (len(aucs) + 5),
     ]
     for est, f in figures.items():
         lines.append(f"| {_display(est)}{' (*oracle*)' if f['oracle'] else ''} | "
                      + " | ".join(_fmt(a) for a in f["pose_auc"].values())
                      + f" | {_fmt(f['nsgd_recall'])} | {_fmt(f['sed_median'])} | {_fmt(f['sampson_median'])} | "
-                     f"{f['failed']}/{f['pairs']} |")
+                     f"{f['errors']}/{f['pairs']} | {f['fails']}/{f['pairs']} |")
     partial = [f"{_display(e)}: pose AUC over {f['pose_pairs']} and NSGD recall over {f['gt_pairs']} of {f['pairs']} pairs"
                for e, f in figures.items() if f.get("pose_pairs", f["pairs"]) < f["pairs"] or f.get("gt_pairs", f["pairs"]) < f["pairs"]]
     if partial:
@@ -431,9 +435,10 @@ def figures_markdown(figures: dict[str, dict[str, Any]]) -> list[str]:
         "",
         "Pose AUC: area under the recall curve of max(rotation error, translation-direction error) up to each threshold, "
         "as LightGlue / glue-factory compute it ((R, t) from E = K_b^T F K_a by cheirality on the evaluation matches; "
-        "a failure counts as an infinite error). NSGD recall: share of pairs whose FM-Bench normalized symmetric "
-        "geometric distance is below the threshold (a failure is a miss). Medians: of the per-pair median over the "
-        "evaluation matches, over the pairs where the estimator succeeded. " + BASELINE_NOTE,
+        "an error (no F) counts as an infinite error). NSGD recall: share of pairs whose FM-Bench normalized symmetric "
+        "geometric distance is below the threshold (an error is a miss). Medians: of the per-pair median over the "
+        "evaluation matches, over the pairs where the estimator gave an F. Fails: past the column's threshold or no value, "
+        "the pairs `fviz compare` counts as fails. " + BASELINE_NOTE,
     ]
     return lines
 
@@ -444,7 +449,7 @@ def summary_document(config: RunConfig, stats: _Stats) -> dict[str, Any]:
     figures = standard_figures(stats.per_pair, ests, stats.known, stats.pair_gt, stats.failed)
     clean = lambda v: v if not isinstance(v, float) or math.isfinite(v) else None  # noqa: E731
     return {
-        "selection": config.selection.describe(), "pairs": stats.pairs, "pairs_failed": stats.pair_errors,
+        "selection": config.selection.describe(), "pairs": stats.pairs, "pair_errors": stats.pair_errors,
         "norm": config.norm, "eval_threshold_px": config.eval_threshold,
         "failures": stats.failures.document(),
         "gt_bias": stats.gt_bias,
@@ -469,9 +474,9 @@ def _pair_text(rec: dict[str, Any], result: PairResult) -> str:
     from fviz.record.writer import pair_markdown
 
     if rec.get("result") is None:
-        return f"# {rec['key']}\n\n**failed**: {rec['error']}\n"
+        return f"# {rec['key']}\n\n**pair error** (not evaluated): {rec['error']}\n"
     text = pair_markdown(result)
-    return text + (f"\n\n**pair failed**: {rec['error']}\n" if rec["error"] else "")
+    return text + (f"\n\n**pair error**: {rec['error']}\n" if rec["error"] else "")
 
 
 def log_summary_pair(rec_stream, index: int, rec: dict[str, Any], result: PairResult, motion: bool = True) -> None:
@@ -492,7 +497,7 @@ def log_summary_pair(rec_stream, index: int, rec: dict[str, Any], result: PairRe
 def run_markdown(config: RunConfig, stats: _Stats) -> str:
     """eval.rrd's summary tab: the run's standard figures (what summary.md opens with)."""
     ests = list(stats.order) or config.series_names()
-    return "\n".join([f"**{config.selection.describe()}**: {stats.pairs} pairs ({stats.pair_errors} failed as a whole).",
+    return "\n".join([f"**{config.selection.describe()}**: {stats.pairs} pairs ({stats.pair_errors} not evaluated: pair errors).",
                       "", *figures_markdown(standard_figures(stats.per_pair, ests, failures=stats.failed)), "",
                       "Tabs: **metrics** (errors on log10 axes) and **motion** (one series per F over the `pair` timeline), **curves** (share "
                       "of the pairs below each threshold), and with `--full` the pairs' images. Every figure: summary.md."])

@@ -142,7 +142,7 @@ def paired_test(a: list[PairFigures], b: list[PairFigures], metric: str, names: 
     a_ahead = (median > 0) if metric in HIGHER_IS_BETTER else (median < 0)
     better = (names[0] if a_ahead else names[1]) if w.n and w.p < 0.05 else ""
     return {"metric": metric, "pairs": len(c.values), "wins": len(c.wins), "losses": len(c.losses), "ties": len(c.ties),
-            "a_failed": len(c.a_failed), "b_failed": len(c.b_failed), "median_a_minus_b": median,
+            "a_errors": len(c.a_errors), "b_errors": len(c.b_errors), "median_a_minus_b": median,
             "wilcoxon_p": w.p, "wilcoxon_method": w.method, "wilcoxon_n": w.n,
             "verdict": f"{better} better" if better else "no difference shown"}
 
