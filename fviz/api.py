@@ -299,13 +299,15 @@ def inspect_pair(
 
     Returns:
         A :class:`fviz.evaluate.PairResult`: ``estimators`` (one ``EstimatorResult`` per F: ``name``, ``F`` (3, 3),
-        ``metrics`` dict, ``error``), the ground truth's row ``gt`` first when known; ``to_dict()`` is exactly
+        ``metrics`` dict, ``error``), the ground truth's row ``gt`` first when known, ``verdict`` (``kind``, ``text``:
+        the pair's verdict, :mod:`fviz.verdicts`); ``to_dict()`` is exactly
         what ``fviz inspect pair --json`` prints (without its ``recording`` key).
     """
     from fviz.diagnose import gt_suspect_note
     from fviz.estimators.base import missing_K
     from fviz.estimators.options import EstimatorOptions
     from fviz.evaluate import GT_NAME, evaluate_pair
+    from fviz.verdicts import verdict_of
 
     if not isinstance(pair, Pair):
         raise FvizError(f"pair: expected an fviz.Pair, got {type(pair).__name__}")
@@ -334,6 +336,7 @@ def inspect_pair(
     result = evaluate_pair(pair, ests, opts.feature_config(), norm, eval_threshold, threshold, timeout=timeout)
     if (note := gt_suspect_note(pair, result)) is not None:
         result.notes.insert(0, note)
+    result.verdict = verdict_of(pair, result)
     return result
 
 

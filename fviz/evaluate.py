@@ -124,6 +124,7 @@ class PairResult:
     match_precision: dict[str, float] = field(default_factory=dict)
     eval_points: str = "near-gt"  # what the residuals are computed on: near-gt, gt-matches or all-matches
     agreement: dict[str, Any] | None = None  # without ground truth: {"metric": "nsgd", "names", "matrix"}
+    verdict: Any = None  # fviz.verdicts.Verdict, set by fviz.inspect_pair
 
     @property
     def has_gt(self) -> bool:
@@ -153,6 +154,7 @@ class PairResult:
             "estimators": [r.to_dict() for r in self.estimators],
             "notes": self.notes,
             "match_precision": {k: _json_float(v) for k, v in self.match_precision.items()},
+            **({} if self.verdict is None else {"verdict": {"kind": self.verdict.kind, "text": self.verdict.text}}),
         }
 
     def rows(self) -> list[dict[str, Any]]:

@@ -219,7 +219,7 @@ def test_malformed_results_lines_are_skipped_with_a_warning_and_recomputed(small
         f"warning: {path}:5: not a pair record (no 'key'); skipped, its pair is evaluated again",
         f"warning: {path}:6: not a pair record ('result.estimators[].metrics' is NoneType); skipped, its pair is evaluated again",
     ]
-    assert "7 pairs (4 already done, 3 evaluated now, 0 failed" in r.stderr
+    assert "7 pairs (4 already done, 3 evaluated now, 0 not evaluated (pair errors)" in r.stderr
     assert without_timings(read_csv(run / "metrics.csv")) == expected
     if command == "triage":
         assert (run / "triage.md").is_file()
@@ -235,7 +235,7 @@ def test_user_estimator_returning_junk_fails_only_itself(kitti_root, tmp_path):
     r = run_fviz("eval", *odometry(kitti_root, "0:3"), "-e", "ransac", "-e", "junk_est:text", "-e", "junk_est:small",
                  "-e", "junk_est:triple", *SMALL, "--workers", "1", "--out-dir", tmp_path / "run", cwd=tmp_path)
     assert r.returncode == 0, r.stderr
-    assert "0 failed" in r.stderr
+    assert "0 not evaluated (pair errors)" in r.stderr
     rows = read_csv(tmp_path / "run" / "metrics.csv")
     assert len(rows) == 2 * 5 and not any(row["pair_error"] for row in rows)
     for row in rows:

@@ -11,6 +11,7 @@ from rerun.chunk import RrdReader
 
 from fviz.geometry import epipoles, symmetric_epipolar_distance
 from fviz.record import layout as L
+from fviz.record.writer import LINE_PX, TAG_CHAR_PX
 
 ESTIMATORS = ("8point", "ransac", "magsac")
 
@@ -100,11 +101,12 @@ def test_match_residuals_match_an_independent_computation(inspected):
         assert (classes < L.RESIDUAL_CLASSES).sum() == e["metrics"]["n_inliers"]  # inlier classes first
 
 
-def lines_of(entity) -> np.ndarray:
+def lines_of(entity, size) -> np.ndarray:
     """The epipolar-line strips of an ``epilines`` entity (its epipole cross left out)."""
     strips, labels, radii = col(entity, "LineStrips2D:strips"), col(entity, "LineStrips2D:labels"), col(entity, "LineStrips2D:radii")
-    # the cross's two strips are thicker (2 px), the captions and names labelled
-    return np.array([s for s, lab, r in zip(strips, labels, radii) if not lab and r == np.float32(0.9)])
+    # the cross's two strips are thicker, the captions and names labelled
+    return np.array([s for s, lab, r in zip(strips, labels, radii)
+                     if not lab and r == np.float32(LINE_PX * L.screen_unit(size))])
 
 
 def test_epipolar_lines_are_clipped_and_pass_through_the_epipole(inspected):
@@ -113,7 +115,7 @@ def test_epipolar_lines_are_clipped_and_pass_through_the_epipole(inspected):
     for e in doc["estimators"]:
         F = np.array(e["F"])
         for v, ep in zip(("a", "b"), epipoles(F)):
-            strips = lines_of(ent[L.est(v, e["name"], "epilines")])
+            strips = lines_of(ent[L.est(v, e["name"], "epilines")], (w, h))
             assert 0 < len(strips) <= 25
             assert strips[..., 0].min() >= -0.5 - 1e-3 and strips[..., 0].max() <= w - 0.5 + 1e-3
             assert strips[..., 1].min() >= -0.5 - 1e-3 and strips[..., 1].max() <= h - 0.5 + 1e-3
@@ -150,13 +152,14 @@ def test_every_epipole_is_named_in_the_overview(inspected):
         shapes = set()
         for i, e in enumerate(doc["estimators"]):
             mine = [np.array(s) for s, lab, r in zip(strips, labels, radii)
-                    if lab.startswith(f"{e['name']}: epipole at (") and r == np.float32(1.6)]
+                    if lab.startswith(f"{e['name']}: epipole at (") and r == np.float32(1.6 * L.screen_unit((w, h)))]
             assert mine
             shapes.add(tuple(np.round(np.concatenate(mine) - np.concatenate(mine).mean(0), 1).ravel()))
             pts = np.concatenate(mine)
             centre = (pts.min(0) + pts.max(0)) / 2
-            # its name above it, kept 60 px inside the image when the glyph sits on the border
-            assert tags[i][0] == pytest.approx(min(max(centre[0], 60.0), w - 60.0)) and tags[i][1] < centre[1]
+            # its name above it, its box kept inside the image when the glyph sits on the border
+            half = (len(e["name"]) + 2) * TAG_CHAR_PX * L.screen_unit((w, h)) / 2
+            assert tags[i][0] == pytest.approx(min(max(centre[0], half), w - half)) and tags[i][1] < centre[1]
             ep = epipoles(np.array(e["F"]))[k]
             p = ep[:2] / ep[2]
             if -0.5 <= p[0] <= w - 0.5 and -0.5 <= p[1] <= h - 0.5:  # the glyph is on the epipole
@@ -169,7 +172,7 @@ def test_every_epipole_is_named_in_the_overview(inspected):
                 assert d1 @ d2 > 0
         assert len(shapes) == len(doc["estimators"])  # no two F share a glyph
         halo = [r for r, lab in zip(radii, labels) if not lab]
-        assert halo and all(r > np.float32(1.6) for r in halo)
+        assert halo and all(r > np.float32(1.6 * L.screen_unit((w, h))) for r in halo)
 
 
 def test_stereo_epipole_at_infinity_is_marked_at_the_border(kitti_root, tmp_path):

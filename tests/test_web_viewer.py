@@ -46,9 +46,10 @@ def distinct_colors(rgb: np.ndarray, step: int = 16) -> int:
 
 
 def viewer_rendered(rgb: np.ndarray) -> bool:
-    """The viewer's panels are drawn: Rerun's loading screen has < 150 distinct colours (in 16-level bins); fviz's
-    screens 190 (probe) to 470 (overview), dark plots and a few estimator colours being the fewest."""
-    return distinct_colors(rgb) > 150 and float(rgb.std()) > 25
+    """The viewer's panels are drawn: Rerun's loading and welcome screens have < 40 distinct colours (in 16-level
+    bins) and a grey-level spread (std) < 10; fviz's screens 125 (triage's dark plots of points) to 470 (overview),
+    std 24 to 60."""
+    return distinct_colors(rgb) > 100 and float(rgb.std()) > 20
 
 
 def find_image(gray: np.ndarray, image: np.ndarray, scales=np.arange(0.30, 1.301, 0.01)) -> tuple[float, float, tuple[int, int, int, int]]:

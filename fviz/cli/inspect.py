@@ -95,17 +95,13 @@ def pair(
                               threshold=threshold, confidence=confidence, max_iters=max_iters, seed=seed, norm=norm,
                               eval_threshold=eval_threshold, timeout=estimator_timeout)
     path = api.save_recording(out or default_out(p.id.name), p, result, lines=lines, probe=probe, probe_by=probe_by)
-    from fviz.verdicts import verdict_of
-
-    verdict = verdict_of(p, result)
     doc = result.to_dict()
     doc["recording"] = str(path)
-    doc["verdict"] = {"kind": verdict.kind, "text": verdict.text}
     if as_json:
         json.dump(doc, sys.stdout, indent=2)
         sys.stdout.write("\n")
     else:
-        _print_table(result, path, verdict.line)
+        _print_table(result, path, result.verdict.line)
     for note in result.notes:
         print(f"note: {note}", file=sys.stderr)
     for line in result.errors:

@@ -452,7 +452,8 @@ def log_pair(rec, index: int, pair: Pair, result: PairResult, n_lines: int = 30,
 
     colors = colors or L.estimator_colors(_names(result))
     rec.set_time(L.TIMELINE, sequence=index)
-    rec.log(L.VERDICT, rr.TextDocument(verdict_of(pair, result, by).markdown(), media_type="text/markdown"))
+    verdict = result.verdict if by is None and result.verdict is not None else verdict_of(pair, result, by)
+    rec.log(L.VERDICT, rr.TextDocument(verdict.markdown(), media_type="text/markdown"))
     sizes = {"a": pair.size_a, "b": pair.size_b}
     unit = L.screen_unit(pair.size_a)
     rec.log("b", rr.Transform3D(translation=[*L.offset_b(pair.size_a), 0.0]))
