@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import poselib
 import pytest
-from sources_util import closed_form_F, fountain, same_up_to_sign, strecha_camera, strecha_projection
+from sources_util import closed_form_F, same_up_to_sign, strecha_camera, strecha_projection
 
 from fviz.data.correspondences import Correspondences, fit_gt, refined_fit
 from fviz.geometry import normalize, sampson_distance, symmetric_epipolar_distance

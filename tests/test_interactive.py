@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
-from fviz.interactive import PairFs, click, click_at, locate, session_for
+from fviz.interactive import PairFs, click, click_at, locate
 from fviz.record import layout as L
 
 SIZE_A, SIZE_B = (640, 200), (500, 300)

@@ -70,7 +70,7 @@ def open_page(b: Chromium, path, frame_a: np.ndarray | None = None) -> Page:
         time.sleep(1)
     b.wait_stable(viewer_rendered, timeout=budget())
     if frame_a is None:
-        from fviz.record.reader import image_size, column
+        from fviz.record.reader import column
 
         blob = column(path, L.image("a"), "EncodedImage:blob")[0]
         frame_a = cv2.imdecode(np.frombuffer(bytes(blob[0] if isinstance(blob, list) else blob), np.uint8), 0)
@@ -115,8 +115,11 @@ def click_answered(b: Chromium, at, tries: int = 4) -> float:
                          f"(events sent by the page: {evaluate(b, 'window.fviz.events.length')})")
 
 
-def line_pixels(rgb: np.ndarray, page: Page, view: str, line: np.ndarray, color, size, band: float = 2.5) -> int:
-    """Pixels of ``color`` within ``band`` screen px of ``line`` (in image ``view``'s pixels), inside that image."""
+def line_pixels(rgb: np.ndarray, page: Page, view: str, line: np.ndarray, color, size, band: float = 2.5,
+                epipole: np.ndarray | None = None, clear: float = 40.0) -> int:
+    """Pixels of ``color`` within ``band`` screen px of ``line`` (in image ``view``'s pixels), inside that image,
+    farther than ``clear`` screen px from ``epipole`` (homogeneous, image px): every epipolar line passes through
+    its epipole, where the F's glyph and name are drawn whether or not a line is."""
     h, w = rgb.shape[:2]
     yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
     # screen -> image pixels
@@ -124,6 +127,9 @@ def line_pixels(rgb: np.ndarray, page: Page, view: str, line: np.ndarray, color,
     u = (xx - page.x) / page.scale - 0.5
     v = (yy - page.y) / page.scale - 0.5 - off
     inside = (u >= 0) & (u <= size[0] - 1) & (v >= 0) & (v <= size[1] - 1)
+    if epipole is not None and abs(epipole[2]) > 1e-12:
+        ex, ey = epipole[:2] / epipole[2]
+        inside &= np.hypot(u - ex, v - ey) * page.scale > clear
     d = np.abs(line[0] * u + line[1] * v + line[2]) / np.hypot(line[0], line[1]) * page.scale
     return int((near(rgb, color) & inside & (d < band)).sum())
 
@@ -168,8 +174,11 @@ def test_a_click_on_a_keypoint_draws_its_lines_in_the_other_image_and_a_second_c
         lines_b = {e: cv2.computeCorrespondEpilines(fs.x_a[j].reshape(1, 1, 2).astype(np.float32), 1, F).reshape(3)
                    for e, F in Fs.items()}
 
+        from fviz.geometry import epipoles
+
         def drawn(rgb, view, lines, size):
-            return {e: line_pixels(rgb, page, view, lines[e], COLORS[e], size) for e in lines}
+            return {e: line_pixels(rgb, page, view, lines[e], COLORS[e], size, epipole=epipoles(Fs[e])[view == "b"])
+                    for e in lines}
 
         was = drawn(before, "b", lines_b, size_b)
         end = time.monotonic() + budget()

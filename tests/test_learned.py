@@ -211,7 +211,7 @@ def test_run_cache_round_trip(learned_extra, kitti_pair, tmp_path):
     import h5py
 
     from fviz.estimators.features import FeatureCache, FeatureConfig
-    from fviz.run.hloc_cache import RunCache, features_entry, matches_entry
+    from fviz.run.hloc_cache import RunCache
 
     cfg = FeatureConfig("xfeat+lighterglue", TOP_K)
     cache = FeatureCache(cfg)

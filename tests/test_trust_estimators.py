@@ -10,7 +10,6 @@ import subprocess
 import sys
 from pathlib import Path
 
-import pytest
 from cli_util import read_csv
 
 PROJECT = Path(__file__).resolve().parents[1]
