@@ -314,11 +314,13 @@ VIEW_PX = (1140.0, 820.0)  # below the verdict line (~60 px)
 ARRANGE_VIEW_PX = (1400.0, 820.0)
 GAP_PX = 24.0  # screen px between image a and image b
 FOOTER_PX = 64.0  # screen px below the images: the estimator's numbers and the residual scale
+MARGIN_PX = 12.0  # screen px left, right and above the images: an epipole's glyph on their border shows whole
 
 
 def _image_px_per_screen_px(size_a: tuple[int, int], side: bool, view: tuple[float, float]) -> float:
     """Image px per screen px when both images (image a's size) and the gap and footer fit ``view``."""
     (w, h), (vw, vh) = size_a, view
+    vw, vh = vw - 2 * MARGIN_PX, vh - MARGIN_PX
     if side:
         return max(2 * w / (vw - GAP_PX), h / (vh - FOOTER_PX))
     return max(w / vw, 2 * h / (vh - GAP_PX - FOOTER_PX))
@@ -462,10 +464,12 @@ def _images_view(sizes: tuple[tuple[int, int], tuple[int, int]], name: str, cont
     import rerun.blueprint as rrb
 
     w, h = images_extent(*sizes)
-    bottom = h + FOOTER_PX * screen_unit(sizes[0])
+    unit = screen_unit(sizes[0])
+    bottom, m = h + FOOTER_PX * unit, MARGIN_PX * unit
     clicks = [f"+ {click(v)}/**" for v in VIEWS]  # drawn live by the viewers that send clicks (fviz.interactive)
     return rrb.Spatial2DView(origin="/", contents=[f"+ {image('a')}", f"+ {image('b')}", *contents, *clicks], name=name,
-                             visual_bounds=rrb.VisualBounds2D(x_range=[-0.5, w - 0.5], y_range=[-0.5, bottom - 0.5]),
+                             visual_bounds=rrb.VisualBounds2D(x_range=[-0.5 - m, w - 0.5 + m],
+                                                              y_range=[-0.5 - m, bottom - 0.5]),
                              overrides=overrides)
 
 
