@@ -190,7 +190,18 @@ def test_eval_triage_table_without_ground_truth(tmp_path):
     figures = json.loads((run / "summary.json").read_text())["estimators"]
     for f in figures.values():
         assert f["nsgd_recall"] is None and set(f["pose_auc"].values()) == {None} and f["sed_median"] > 0
-    assert "no ground truth" in (run / "summary.md").read_text()
+    md = (run / "summary.md").read_text()
+    assert "no ground truth" in md
+    # how far the two estimators' F are apart over the run: the median of the pairs' agreement matrices' cell
+    nsgd = []
+    for r in recs:
+        ag = r["result"]["agreement"]
+        i, j = ag["names"].index("8point"), ag["names"].index("magsac")
+        nsgd.append(ag["matrix"][i][j])
+    agreement = json.loads((run / "summary.json").read_text())["agreement"]["8point - magsac"]
+    assert agreement["pairs"] == 2 and agreement["median_nsgd"] == pytest.approx(float(np.median(nsgd)))
+    assert agreement["agree"] == sum(v < 0.05 for v in nsgd)
+    assert f"| 8point - magsac | 2 | {float(np.median(nsgd)):.4g} | {agreement['agree']} of 2 |" in md
     for cmd in (["triage", "--out-dir", run], ["table", run]):
         proc = run_fviz(*cmd, timeout=300)
         assert proc.returncode == 0, proc.stderr

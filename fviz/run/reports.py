@@ -85,6 +85,7 @@ class _Stats:
         self.failures = Failures()  # pair and estimator failures grouped by cause (fviz.failures)
         self.pair_gt: dict[str, list[str]] = {}  # per estimator, each pair's ground truth (pose, F, ..., none)
         self.epipole_offsets: list = []  # per pair with forward motion, the tight fits' offset from F_gt (gt_bias)
+        self.agreement: dict[tuple[str, str], array] = {}  # no ground truth: per two estimators, each pair's NSGD
 
     @property
     def gt_bias(self) -> dict[str, Any] | None:
@@ -106,6 +107,7 @@ class _Stats:
             if v is not None:
                 self.precision.setdefault(key, array("d")).append(float(v))
         self._add_oracle_choices((rec.get("result") or {}).get("estimators", []))
+        self._add_agreement((rec.get("result") or {}).get("agreement"))
         for row in rows:
             est = row["estimator"]
             self.order[est] = None
@@ -120,6 +122,24 @@ class _Stats:
                 v = row.get(key)
                 if isinstance(v, float) and math.isfinite(v):
                     self.values.setdefault((est, key), array("d")).append(v)
+
+    def _add_agreement(self, ag: dict[str, Any] | None) -> None:
+        """A pair's agreement matrix (no ground truth: NSGD between every two estimates) into per-two series."""
+        if not ag:
+            return
+        names, m = ag["names"], ag["matrix"]
+        for i, a in enumerate(names):
+            for j in range(i + 1, len(names)):
+                if m[i][j] is not None and math.isfinite(m[i][j]):
+                    self.agreement.setdefault((a, names[j]), array("d")).append(float(m[i][j]))
+
+    def agreement_table(self) -> dict[str, dict[str, Any]]:
+        """Per two estimators ("a - b"), over the pairs where both gave an F: ``pairs``, ``median_nsgd`` and
+        ``agree`` (pairs where they agree: NSGD under fviz.verdicts' agreement_nsgd threshold)."""
+        rule = fail_rule("agreement_nsgd")
+        return {f"{a} - {b}": {"pairs": len(v), "median_nsgd": float(np.median(v)),
+                               "agree": int(sum(not rule.fails(x) for x in v))}
+                for (a, b), v in self.agreement.items() if len(v)}
 
     def _add_oracle_choices(self, ests: list[dict[str, Any]]) -> None:
         """Which threshold each sweep oracle chose on a pair: the grid entry with the very same F."""
@@ -240,6 +260,7 @@ def summary_markdown(config: RunConfig, stats: _Stats) -> str:
         "",
         *figures_markdown(standard_figures(stats.per_pair, ests, stats.known, stats.pair_gt, stats.failed)),
         "",
+        *agreement_markdown(stats),
         "## Per estimator",
     ]
     for key in SUMMARY_METRICS:
@@ -267,6 +288,20 @@ def summary_markdown(config: RunConfig, stats: _Stats) -> str:
         lines.append(f"| {_display(est)} | " + " | ".join(_fmt(v.mean()) if len(v) else "n/a" for v in vals) + " |")
     lines += ["", EPI_CAVEAT]
     return "\n".join(lines) + "\n"
+
+
+def agreement_markdown(stats: _Stats) -> list[str]:
+    """Without ground truth: how far every two estimators' F are apart over the run (:meth:`_Stats.agreement_table`)."""
+    table = stats.agreement_table()
+    if not table:
+        return []
+    threshold = fail_rule("agreement_nsgd").threshold
+    lines = ["## Agreement between the estimators (no ground truth)", "",
+             f"Per two estimators, over the pairs where both gave an F: the NSGD between their F (FM-Bench's normalized "
+             f"distance) and the pairs where they agree (NSGD < {threshold:g}).", "",
+             "| estimators | pairs | median NSGD | agree |", "|---|---|---|---|"]
+    lines += [f"| {k} | {t['pairs']} | {_fmt(t['median_nsgd'])} | {t['agree']} of {t['pairs']} |" for k, t in table.items()]
+    return lines + [""]
 
 
 def time_table(stats: _Stats, ests: Iterable[str]) -> dict[str, dict[str, float]]:
@@ -457,6 +492,7 @@ def summary_document(config: RunConfig, stats: _Stats) -> dict[str, Any]:
                            for k, v in f.items()} for e, f in figures.items()},
         "seconds": {e: {k: clean(v) for k, v in t.items()} for e, t in time_table(stats, ests).items()},
         "match_precision": {k: clean(float(np.mean(v))) for k, v in stats.precision.items()},
+        **({"agreement": stats.agreement_table()} if stats.agreement else {}),
         "threshold_sweep": {b: {"best_over_run_px": e["best"], "oracle": e["oracle"],
                                 "names": {t: n for t, (n, _) in e["curve"].items()},
                                 "oracle_chose": {t: stats.oracle_choice.get(e["oracle"], {}).get(n, 0)
