@@ -63,8 +63,10 @@ def yawed_pairs(n: int, seed: int, yaw_deg: float) -> TensorPairs:
 
 
 def test_the_sed_term_turns_a_straight_model_further_and_best_pt_is_the_best_validation(tmp_path):
-    """From a straight-ahead start towards a 3 deg yaw, 60 steps: L1 + L2 on the normalized F alone stops
-    short of the yaw (it barely sees it); with the SED term the same run gets closer."""
+    """From a straight-ahead start towards a 3 deg yaw, 60 small steps (lr 3e-4): L1 + L2 on the normalized F alone
+    stops short of the yaw (it barely sees it); with the SED term the same run gets closer: yaw error 0.86 -> 0.56 deg,
+    validation SED 0.33 -> 0.20 px (measured on an AVX-512 CPU). With lr 1e-3 the two yaw errors ended 0.40 and
+    0.48 deg there, in the other order on another CPU: too close for rounding to keep their order."""
     from fviz.train.checkpoint import load_model, read_checkpoint
     from fviz.train.heldout import yaw_of_f
 
@@ -76,7 +78,7 @@ def test_the_sed_term_turns_a_straight_model_further_and_best_pt_is_the_best_val
         recipe = Recipe.from_dict({
             "model": {"variant": "siamese-rec-pos-fbn", **TINY},
             "data": {"source": "synthetic", "train_size": 8, "val_size": 4, "val_points": 32},
-            "train": {"batch_size": 8, "lr": 1e-3, "epochs": 1000, "max_steps": 60, "num_workers": 0, "seed": 0,
+            "train": {"batch_size": 8, "lr": 3e-4, "epochs": 1000, "max_steps": 60, "num_workers": 0, "seed": 0,
                       "out_dir": str(tmp_path / f"run{sed_weight}"), "init": init, "sed_weight": sed_weight,
                       "sed_points": 32, "val_every": 20, "keep_best": "sed_px"},
         })
@@ -86,7 +88,8 @@ def test_the_sed_term_turns_a_straight_model_further_and_best_pt_is_the_best_val
             F = model.eval()(img_a, img_b).double().numpy()
         runs[sed_weight] = result, abs(np.median([yaw_of_f(f, K_TINY, K_TINY) for f in F]) - 3.0)
     (plain, plain_err), (sed, sed_err) = runs[0.0], runs[1.0]
-    assert sed_err < 0.75 * plain_err and sed.metrics["sed_px"] < plain.metrics["sed_px"], (plain_err, sed_err)
+    assert sed_err < 0.85 * plain_err and sed.metrics["sed_px"] < 0.8 * plain.metrics["sed_px"], \
+        (plain_err, sed_err, plain.metrics["sed_px"], sed.metrics["sed_px"])
 
     best = min(sed.history, key=lambda h: h["sed_px"])
     saved = read_checkpoint(tmp_path / "run1.0" / "best.pt")
