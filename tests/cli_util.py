@@ -1,8 +1,17 @@
-"""Run the real ``fviz`` command line in a subprocess, as a user would."""
+"""Run the real ``fviz`` command line in a process of its own, as a user would: forked from a server that has
+imported the heavy libraries once (tests/fork_server.py), or, with ``FVIZ_TEST_SUBPROCESS=1``, a fresh
+``python -m fviz``."""
 
 import csv
+import json
+import os
+import select
+import signal
 import subprocess
 import sys
+import tempfile
+import threading
+from pathlib import Path
 
 
 # The smallest network a recipe can name (seconds to train on a CPU): the [model] table of test recipes.
@@ -31,8 +40,48 @@ out_dir = "{out_dir}"
     return path
 
 
+class _ForkServer:
+    def __init__(self):
+        self.proc = subprocess.Popen([sys.executable, str(Path(__file__).with_name("fork_server.py"))],
+                                     stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, bufsize=1)
+        self.lock = threading.Lock()
+
+    def _answer(self, timeout=None) -> dict:
+        if timeout is not None and not select.select([self.proc.stdout], [], [], timeout)[0]:
+            raise TimeoutError
+        line = self.proc.stdout.readline()
+        if not line:
+            raise RuntimeError(f"the fork server ended (exit {self.proc.wait()})")
+        return json.loads(line)
+
+    def run(self, argv, cwd, timeout) -> subprocess.CompletedProcess:
+        with self.lock, tempfile.TemporaryDirectory(prefix="fviz-cli-") as tmp:
+            out, err = Path(tmp, "stdout"), Path(tmp, "stderr")
+            out.touch()
+            err.touch()
+            self.proc.stdin.write(json.dumps({"argv": ["fviz", *argv], "cwd": str(cwd or os.getcwd()),
+                                              "env": dict(os.environ), "stdout": str(out), "stderr": str(err)}) + "\n")
+            pid = self._answer()["pid"]
+            try:
+                code = self._answer(timeout)["returncode"]
+            except TimeoutError:
+                os.kill(pid, signal.SIGKILL)
+                self._answer()
+                raise subprocess.TimeoutExpired(argv, timeout, out.read_text(), err.read_text()) from None
+            return subprocess.CompletedProcess(argv, code, out.read_text(), err.read_text())
+
+
+_server: _ForkServer | None = None
+
+
 def run_fviz(*args, cwd=None, timeout=120):
-    return subprocess.run([sys.executable, "-m", "fviz", *map(str, args)], capture_output=True, text=True, cwd=cwd, timeout=timeout)
+    global _server
+    argv = [str(a) for a in args]
+    if os.environ.get("FVIZ_TEST_SUBPROCESS") == "1":
+        return subprocess.run([sys.executable, "-m", "fviz", *argv], capture_output=True, text=True, cwd=cwd, timeout=timeout)
+    if _server is None or _server.proc.poll() is not None:
+        _server = _ForkServer()
+    return _server.run(argv, cwd, timeout)
 
 
 def assert_one_line_error(proc, code, *fragments):
