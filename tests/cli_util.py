@@ -2,6 +2,7 @@
 imported the heavy libraries once (tests/fork_server.py), or, with ``FVIZ_TEST_SUBPROCESS=1``, a fresh
 ``python -m fviz``."""
 
+import atexit
 import csv
 import json
 import os
@@ -45,6 +46,17 @@ class _ForkServer:
         self.proc = subprocess.Popen([sys.executable, str(Path(__file__).with_name("fork_server.py"))],
                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, bufsize=1)
         self.lock = threading.Lock()
+        atexit.register(self.close)
+
+    def close(self) -> None:
+        """End the server (its stdin closes) and reap it, so that its children's CPU counts in this process's."""
+        if self.proc.poll() is None:
+            self.proc.stdin.close()
+            try:
+                self.proc.wait(30)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
 
     def _answer(self, timeout=None) -> dict:
         if timeout is not None and not select.select([self.proc.stdout], [], [], timeout)[0]:
