@@ -46,6 +46,7 @@ class _ForkServer:
         self.proc = subprocess.Popen([sys.executable, str(Path(__file__).with_name("fork_server.py"))],
                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, bufsize=1)
         self.lock = threading.Lock()
+        self.pending = b""  # answers read from the pipe, not yet taken (both can arrive in one read)
         atexit.register(self.close)
 
     def close(self) -> None:
@@ -59,11 +60,16 @@ class _ForkServer:
                 self.proc.wait()
 
     def _answer(self, timeout=None) -> dict:
-        if timeout is not None and not select.select([self.proc.stdout], [], [], timeout)[0]:
-            raise TimeoutError
-        line = self.proc.stdout.readline()
-        if not line:
-            raise RuntimeError(f"the fork server ended (exit {self.proc.wait()})")
+        """The server's next answer line; TimeoutError when none arrives in ``timeout`` s (None: wait)."""
+        fd = self.proc.stdout.fileno()
+        while b"\n" not in self.pending:
+            if timeout is not None and not select.select([fd], [], [], timeout)[0]:
+                raise TimeoutError
+            data = os.read(fd, 4096)
+            if not data:
+                raise RuntimeError(f"the fork server ended (exit {self.proc.wait()})")
+            self.pending += data
+        line, self.pending = self.pending.split(b"\n", 1)
         return json.loads(line)
 
     def run(self, argv, cwd, timeout) -> subprocess.CompletedProcess:
