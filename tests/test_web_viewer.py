@@ -2,6 +2,7 @@
 (software WebGL) loads the printed URL; screenshots are polled over the DevTools protocol until the viewer has
 rendered and stopped changing; then the picture is checked as a person would check it:
 
+- every screen: the viewer fills the window (fviz's page overrides the notebook widget's 16:9 box);
 - the overview: both KITTI frames, image a above image b; the ground truth's white lines drawn over them; the
   comparison chart with a bar in every estimator's colour;
 - one estimator's tab: both frames; lines in that estimator's colour and white ground-truth lines over them,
@@ -115,6 +116,9 @@ class Shot:
             assert seconds <= timeout, f"the viewer did not settle in {timeout:.0f} s; {self.context}"
             assert self.rgb.shape[:2] == (1000, 1600), self.rgb.shape
             assert viewer_rendered(self.rgb), f"{distinct_colors(self.rgb)} colours, std {self.rgb.std():.1f}; {self.context}"
+            canvas = browser.evaluate("(() => { const r = document.querySelector('canvas').getBoundingClientRect();"
+                                      " return [r.left, r.top, r.width, r.height]; })()")
+            assert canvas == [0, 0, *self.rgb.shape[1::-1]], f"the viewer does not fill the window: {canvas}; {self.context}"
         finally:
             if browser is not None:
                 browser.close()
@@ -249,6 +253,16 @@ def test_overview_shows_both_frames_the_ground_truth_and_the_comparison(inspecte
         white[v] = int((near(crop, COLORS["gt"]) & drawn).sum())
         assert white[v] > 300, f"{white[v]} white ground-truth line pixels on image {v}; {shot.context}"
     assert_keypoints_in_classes_of("gt", inspected, shot, crops)
+    # below image b, the residual scale's two end labels whole, never cut by the time panel (Rerun's label boxes:
+    # grey LABEL_BOX, dark text, ~21 px high)
+    import cv2
+
+    x, y, w, h = boxes["b"]
+    band = shot.rgb[y + h: y + h + 120, x: x + w].astype(int)
+    n, _, st, _ = cv2.connectedComponentsWithStats((np.abs(band - LABEL_BOX).max(-1) <= 3).astype(np.uint8))
+    ends = sorted((int(st[i, 0]), int(st[i, 3])) for i in range(1, n) if st[i, 4] > 1000)  # (left, height)
+    print(f"residual scale's end labels below image b (left x, height): {ends}")
+    assert len(ends) == 2 and all(eh >= 18 for _, eh in ends), f"scale labels cut or missing: {ends}; {shot.context}"
     # the comparison chart (right column, top): one bar per F in its colour, the ground truth's white included
     h, w = shot.rgb.shape[:2]
     chart = (int(0.72 * w), 60, w - int(0.72 * w), int(0.5 * h))
@@ -302,6 +316,7 @@ def test_an_estimator_tab_shows_that_estimator_alone(inspected, pair_frames, tmp
     assert sum(b > 20 for b in bins) >= L.RESIDUAL_CLASSES - 2, f"residual scale missing below image b: {bins}; {shot.context}"
 
 
+LABEL_BOX = (28, 28, 28)  # the box of a label Rerun draws beside a mark
 VIEW_SEPARATOR = (53, 52, 52)  # the viewer's 2 px lines between views
 
 
