@@ -58,6 +58,11 @@ def test_eval_and_triage_end_with_the_failures_grouped_by_cause(kitti_root, tmp_
     assert [(g["estimator"], g["count"], g["of"]) for g in doc["estimators"]] == [("ahead", 1, 1)]
     md = (out / "summary.md").read_text()
     assert "## Failures" in md and all(f"- {line}" in md for line in expected)
+    from fviz.record import layout as L
+    from fviz.record.reader import text
+
+    tab = text(out / "eval.rrd", L.RUN_SUMMARY)[0]  # and eval.rrd's summary tab
+    assert "## Failures" in tab and all(f"- {line}" in tab for line in expected)
     r = run_fviz("triage", "--out-dir", out, "--no-progress", "--by", "magsac", timeout=300)
     assert r.returncode == 0, r.stderr
     assert r.stderr.strip().splitlines()[-2:] == expected, r.stderr

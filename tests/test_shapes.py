@@ -201,13 +201,23 @@ def side_by_side_boxes(shot, frames, width: float = 1.0) -> dict[str, tuple[int,
 @pytest.mark.slow
 @pytest.mark.parametrize("shape", ["3072x2048", "portrait"])
 def test_numbers_and_scale_are_not_occluded(shaped, shape, tmp_path):
-    """An estimator's tab of a 3072x2048 and of a portrait pair: both images side by side and large, and below
-    them, inside the view (above the time panel), the numbers (a light label box) and every bin of the residual
-    scale, clear of the images."""
-    from test_web_viewer import Shot, near
+    """An estimator's tab of a 3072x2048 and of a portrait pair (:func:`assert_numbers_and_scale_in_view`); on the
+    3072 pair, a click on the probe tab then, in the same page (:func:`assert_probe_rings_and_zoomed_ends`)."""
+    from test_web_viewer import Shot
 
-    path, _ = shaped[shape]
-    shot = Shot(path, tmp_path / f"{shape.replace(':', '')}-ransac.png", "--tab", "ransac", "--web-static")
+    path, doc = shaped[shape]
+    with Shot(path, tmp_path / f"{shape.replace(':', '')}-ransac.png", "--tab", "ransac", "--web-static", keep_open=True) as shot:
+        assert_numbers_and_scale_in_view(shot, path)
+        if shape == "3072x2048":
+            shot.open_tab("probe", tmp_path / "3072-probe.png")
+            assert_probe_rings_and_zoomed_ends(shot, path, doc)
+
+
+def assert_numbers_and_scale_in_view(shot, path) -> None:
+    """Both images side by side and large, and below them, inside the view (above the time panel), the numbers
+    (a light label box) and every bin of the residual scale, clear of the images."""
+    from test_web_viewer import near
+
     boxes = side_by_side_boxes(shot, frames_of(path))
     assert min(b[2] for b in boxes.values()) > 400, f"images small: {boxes}; {shot.context}"
     x0, x1 = boxes["a"][0], boxes["b"][0] + boxes["b"][2]
@@ -222,16 +232,10 @@ def test_numbers_and_scale_are_not_occluded(shaped, shape, tmp_path):
     assert all(b > 20 for b in bins), f"residual scale cut or missing: {bins}; {shot.context}"
 
 
-@pytest.mark.browser
-@pytest.mark.slow
-def test_probe_rings_and_zoomed_ends_are_visible_on_a_3072_pair(shaped, tmp_path):
+def assert_probe_rings_and_zoomed_ends(shot, path, doc) -> None:
     """The probe tab of the 3072x2048 pair: the first step's rings (yellow) where the recording puts them on
     both images, and in the two zoomed views the yellow 3 px ring with the F's lines; the photo itself at its
     own grey (the images are not blended with anything)."""
-    from test_web_viewer import Shot
-
-    path, doc = shaped["3072x2048"]
-    shot = Shot(path, tmp_path / "3072-probe.png", "--tab", "probe", "--web-static")
     frames = frames_of(path)
     boxes = side_by_side_boxes(shot, frames, width=0.75)
     xa, xb, _ = probe_ends(path)

@@ -202,6 +202,8 @@ def test_eval_triage_table_without_ground_truth(tmp_path):
     assert agreement["pairs"] == 2 and agreement["median_nsgd"] == pytest.approx(float(np.median(nsgd)))
     assert agreement["agree"] == sum(v < 0.05 for v in nsgd)
     assert f"| 8point - magsac | 2 | {float(np.median(nsgd)):.4g} | {agreement['agree']} of 2 |" in md
+    tab = text(run / "eval.rrd", L.RUN_SUMMARY)[0]  # eval.rrd's summary tab says it too
+    assert "## Agreement between the estimators" in tab and f"| 8point - magsac | 2 | {float(np.median(nsgd)):.4g} |" in tab
     for cmd in (["triage", "--out-dir", run], ["table", run]):
         proc = run_fviz(*cmd, timeout=300)
         assert proc.returncode == 0, proc.stderr

@@ -18,6 +18,7 @@ Missing /usr/bin/chromium skips locally and fails when CI=true (``.ci/install-br
 from __future__ import annotations
 
 import os
+import time
 
 import numpy as np
 import pytest
@@ -97,33 +98,96 @@ def overlay(rgb: np.ndarray, frame: np.ndarray, box: tuple[int, int, int, int]) 
     return crop.astype(np.uint8), drawn
 
 
-class Shot:
-    """A settled screenshot of ``fviz open FILE --web [extra]``, saved to ``path``."""
+def tab_centres(rgb: np.ndarray, n: int, gap: int = 14) -> list[tuple[int, int]]:
+    """Screen centres of the ``n`` tab titles in the viewer's tab bar, left to right: the first band of rows below
+    Rerun's top bar whose ink (pixels far from the band's background, light or dark theme: icon and title a few
+    px apart) makes exactly ``n`` groups more than ``gap`` px apart, the first at the window's left edge (a line
+    of text is one group), in the left 60 % of the window (the bar's own icons are at its right end)."""
+    left = rgb[:, : int(0.6 * rgb.shape[1])].astype(np.int16)
+    found = []  # runs of consecutive bands with n groups: [(top row of the band, its groups)]
+    for y in range(40, rgb.shape[0] // 3, 2):
+        band = left[y: y + 12]
+        ink = np.abs(band - np.median(band.reshape(-1, 3), 0)).max(-1) > 60
+        cols = np.flatnonzero(ink.any(0))
+        groups = np.split(cols, np.flatnonzero(np.diff(cols) > gap) + 1) if len(cols) else []
+        if len(cols) and cols[0] <= 40 and len(groups) == n and all(len(g) > 4 for g in groups):
+            if found and found[-1][-1][0] != y - 2:
+                if len(found[-1]) >= 6:  # a bar's height (12 px of titles and icons) was seen
+                    break
+                found.pop()
+            if not found or found[-1][-1][0] != y - 2:
+                found.append([])
+            found[-1].append((y, groups))
+    run = max(found, key=len, default=[])
+    if len(run) < 3:
+        raise AssertionError(f"no bar of {n} tabs found")
+    y, groups = run[len(run) // 2]  # the band through the titles' middle
+    return [(int(g[0] + g[-1]) // 2, y + 6) for g in groups]
 
-    def __init__(self, recording, path, *extra: str):
+
+class Shot:
+    """A settled screenshot of ``fviz open FILE --web [extra]``, saved to ``path``. ``keep_open``: the page stays
+    open (close it, or use ``with``) for :meth:`open_tab`, which clicks another tab as a user does."""
+
+    def __init__(self, recording, path, *extra: str, keep_open: bool = False):
         require_chromium()
-        self.path = path
-        server = browser = None
-        timeout = budget()
+        self.recording = recording
+        self.server = self.browser = None
         try:
-            server = WebServer(recording, *extra)
-            browser = Chromium(server.url)
-            png, self.rgb, seconds, n = browser.wait_stable(viewer_rendered, timeout=timeout, shot_timeout=timeout)
-            path.write_bytes(png)
-            print(f"\nscreenshot: {path} ({self.rgb.shape[1]}x{self.rgb.shape[0]}, settled after {seconds:.0f} s, {n} shots)")
-            self.context = (f"screenshot {path}; console errors: {browser.console_errors()[-3:]}; "
-                            f"chromium log:\n{browser.log_tail()}")
+            self.server = WebServer(recording, *extra)
+            self.browser = Chromium(self.server.url)
+            self._settle(path, viewer_rendered)
+            canvas = self.browser.evaluate("(() => { const r = document.querySelector('canvas').getBoundingClientRect();"
+                                           " return [r.left, r.top, r.width, r.height]; })()")
+            assert canvas == [0, 0, *self.rgb.shape[1::-1]], f"the viewer does not fill the window: {canvas}; {self.context}"
+        finally:
+            if not keep_open:
+                self.close()
+
+    def _settle(self, path, ready, timeout: float | None = None, check: bool = True) -> None:
+        timeout = budget() if timeout is None else timeout
+        png, self.rgb, seconds, n = self.browser.wait_stable(ready, timeout=timeout, shot_timeout=timeout)
+        self.path = path
+        path.write_bytes(png)
+        print(f"\nscreenshot: {path} ({self.rgb.shape[1]}x{self.rgb.shape[0]}, settled after {seconds:.0f} s, {n} shots)")
+        self.context = (f"screenshot {path}; console errors: {self.browser.console_errors()[-3:]}; "
+                        f"chromium log:\n{self.browser.log_tail()}")
+        if check:
             assert seconds <= timeout, f"the viewer did not settle in {timeout:.0f} s; {self.context}"
             assert self.rgb.shape[:2] == (1000, 1600), self.rgb.shape
             assert viewer_rendered(self.rgb), f"{distinct_colors(self.rgb)} colours, std {self.rgb.std():.1f}; {self.context}"
-            canvas = browser.evaluate("(() => { const r = document.querySelector('canvas').getBoundingClientRect();"
-                                      " return [r.left, r.top, r.width, r.height]; })()")
-            assert canvas == [0, 0, *self.rgb.shape[1::-1]], f"the viewer does not fill the window: {canvas}; {self.context}"
-        finally:
-            if browser is not None:
-                browser.close()
-            if server is not None:
-                server.close()
+
+    def open_tab(self, name: str, path, tries: int = 3) -> None:
+        """Click tab ``name`` in the tab bar (found on the screen, in the recording's tab order), as a user does,
+        until the screen changes; then settle again."""
+        from fviz.record.reader import blueprint_tabs
+
+        tabs = list(blueprint_tabs(self.recording))
+        x, y = tab_centres(self.rgb, len(tabs))[tabs.index(name)]
+        before = self.rgb.astype(np.int16)
+        changed = lambda rgb: viewer_rendered(rgb) and float(np.abs(rgb.astype(np.int16) - before).mean()) > 2.0  # noqa: E731
+        for attempt in range(tries):
+            self.browser.call("Input.dispatchMouseEvent", {"type": "mouseMoved", "x": x, "y": y})
+            time.sleep(0.5)
+            for kind in ("mousePressed", "mouseReleased"):
+                self.browser.call("Input.dispatchMouseEvent", {"type": kind, "x": x, "y": y, "button": "left", "buttons": 1, "clickCount": 1})
+            print(f"clicked tab {name!r} at ({x}, {y})")
+            self._settle(path, changed, budget() / tries, check=attempt == tries - 1)
+            if changed(self.rgb):
+                return
+        raise AssertionError(f"a click on tab {name!r} at ({x}, {y}) changed nothing; {self.context}")
+
+    def close(self) -> None:
+        if self.browser is not None:
+            self.browser.close()
+        if self.server is not None:
+            self.server.close()
+
+    def __enter__(self) -> "Shot":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
 
     def frames(self, frames: dict[str, np.ndarray], x_range=(0.0, 1.0)) -> dict[str, tuple[int, int, int, int]]:
         """Find both frames in the columns ``x_range`` (fractions of the width): a above b, same scale, large.
@@ -352,11 +416,10 @@ def deep_run(kitti_root, tmp_path_factory):
     return eval_run(kitti_root, tmp_path_factory.mktemp("runs") / "run", "0:12", (*ESTIMATORS, "deep"))
 
 
-def test_run_motion_tab_separates_the_flat_network_from_the_moving_truth(deep_run, tmp_path):
+def assert_motion_separates_the_flat_network_from_the_moving_truth(shot: Shot) -> None:
     """eval.rrd's motion tab with 8point in the run: the ground truth's epipole moves, the network's stays flat,
     and both are readable beside each other (ranges that leave 8-point's swings off-scale); the plots' legends
     are hidden and one legend view holds every series' colour."""
-    shot = Shot(deep_run / "eval.rrd", tmp_path / "motion.png", "--tab", "motion")
     boxes = plot_boxes(shot.rgb)
     print(f"plots {boxes}")
     assert len(boxes) >= 6, f"{len(boxes)} plots; {shot.context}"
@@ -483,12 +546,11 @@ def legend_stacks(rgb: np.ndarray, colors: dict, outside=None) -> list[list[tupl
     return stacks
 
 
-def test_run_legend_covers_no_data(deep_run, tmp_path):
+def assert_legend_covers_no_data(shot: Shot) -> None:
     """eval.rrd's metrics tab: every series' name is in the legend view (a bar in its colour each, one column, in
     the recording's order) and the legend's box holds no series line; no plot draws a legend of its own over
     its data (a column of series swatches, as egui's plot legend draws them)."""
     colors = L.estimator_colors(["gt", *ESTIMATORS, "deep"])
-    shot = Shot(deep_run / "eval.rrd", tmp_path / "metrics.png", "--tab", "metrics")
     bars = legend_bars(shot.rgb, colors)
     print(f"legend bars {bars}")
     assert set(bars) == set(colors), f"legend rows missing: {set(colors) - set(bars)}; {shot.context}"
@@ -507,6 +569,15 @@ def test_run_legend_covers_no_data(deep_run, tmp_path):
         f"series lines over the legend's bars {column}: {lines}; {shot.context}"
     stacks = legend_stacks(shot.rgb, colors, outside=box)
     assert not stacks, f"a plot draws its own legend over its data: {stacks[0]}; {shot.context}"
+
+
+def test_run_metrics_tab_then_a_click_on_the_motion_tab(deep_run, tmp_path):
+    """eval.rrd opened on its metrics tab (:func:`assert_legend_covers_no_data`); then, in the same page, a click on
+    the motion tab as a user clicks it (:func:`assert_motion_separates_the_flat_network_from_the_moving_truth`)."""
+    with Shot(deep_run / "eval.rrd", tmp_path / "metrics.png", "--tab", "metrics", keep_open=True) as shot:
+        assert_legend_covers_no_data(shot)
+        shot.open_tab("motion", tmp_path / "motion.png")
+        assert_motion_separates_the_flat_network_from_the_moving_truth(shot)
 
 
 def test_suspect_ground_truth_overview_draws_the_reference(kitti_root, odometry, tmp_path):

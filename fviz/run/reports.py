@@ -531,10 +531,12 @@ def log_summary_pair(rec_stream, index: int, rec: dict[str, Any], result: PairRe
 
 
 def run_markdown(config: RunConfig, stats: _Stats) -> str:
-    """eval.rrd's summary tab: the run's standard figures (what summary.md opens with)."""
+    """eval.rrd's summary tab: the run's standard figures (what summary.md opens with), its failures by cause and,
+    without ground truth, which estimators agree."""
     ests = list(stats.order) or config.series_names()
     return "\n".join([f"**{config.selection.describe()}**: {stats.pairs} pairs ({stats.pair_errors} not evaluated: pair errors).",
                       "", *figures_markdown(standard_figures(stats.per_pair, ests, failures=stats.failed)), "",
+                      *failure_markdown(stats.failures.document()), *agreement_markdown(stats),
                       "Tabs: **metrics** (errors on log10 axes) and **motion** (one series per F over the `pair` timeline), **curves** (share "
                       "of the pairs below each threshold), and with `--full` the pairs' images. Every figure: summary.md."])
 
