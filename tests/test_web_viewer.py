@@ -5,8 +5,9 @@ rendered and stopped changing; then the picture is checked as a person would che
 - every screen: the viewer fills the window (fviz's page overrides the notebook widget's 16:9 box);
 - the overview: both KITTI frames, image a above image b; the ground truth's white lines drawn over them; the
   comparison chart with a bar in every estimator's colour;
-- one estimator's tab: both frames; lines in that estimator's colour and white ground-truth lines over them,
-  and no other estimator's colour anywhere on the frames;
+- one estimator's tab, clicked in the overview's page: both frames; lines in that estimator's colour and white
+  ground-truth lines over them, no other estimator's colour anywhere on the frames, the keypoints in that
+  estimator's residual classes; its numbers below the images;
 - an eval recording: the metric series in every estimator's colour, the ground truth's white among them.
 
 Overlays are told from the photo by comparing the screenshot with the real frame at the scale found. Each
@@ -258,19 +259,24 @@ def assert_verdict_line_inside(shot: "Shot", markdown, only: bool = True) -> Non
     assert not only or len(lines) == 1, f"the verdict is not one line: {lines}; {shot.context}"
 
 
-def residual_sides(crop: np.ndarray, drawn: np.ndarray, tol: float = 20.0) -> tuple[int, int]:
+def residual_sides(crop: np.ndarray, drawn: np.ndarray, tol: float = 20.0, dot: int = 8) -> tuple[int, int]:
     """Overlay pixels of the keypoints' residual scale, as (near the line: bins 0-1, mid-way: bins 3-6) by the
-    nearest bin colour within ``tol``."""
+    nearest bin colour within ``tol``, in dots (pieces at most ``dot`` px across: a keypoint is ~5)."""
     import cv2
 
     bins = L.class_color(np.arange(L.RESIDUAL_CLASSES)).astype(np.float32)
-    # not at the lines, whose anti-aliased edges blend with the photo into teal or violet
+    # not at the lines, whose anti-aliased edges blend with the photo into teal or violet (and, under a label's
+    # translucent box, a line dimmed to teal is no dot either)
     lines = np.any([near(crop, c) for c in COLORS.values()], axis=0).astype(np.uint8)
     drawn = drawn & ~cv2.dilate(lines, np.ones((7, 7), np.uint8)).astype(bool)
-    px = crop[drawn].astype(np.float32)
-    dist = np.linalg.norm(px[:, None] - bins[None], axis=-1)
-    nearest = np.where(dist.min(1) < tol, dist.argmin(1), -1)
-    return int(np.isin(nearest, (0, 1)).sum()), int(np.isin(nearest, (3, 4, 5, 6)).sum())
+    dist = np.linalg.norm(crop.astype(np.float32)[..., None, :] - bins, axis=-1)
+    nearest = np.where(drawn & (dist.min(-1) < tol), dist.argmin(-1), -1)
+
+    def dots(mask: np.ndarray) -> int:
+        n, _, st, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8))
+        return int(sum(st[i, 4] for i in range(1, n) if max(st[i, 2], st[i, 3]) <= dot))
+
+    return dots(np.isin(nearest, (0, 1))), dots(np.isin(nearest, (3, 4, 5, 6)))
 
 
 def class_sides(classes) -> tuple[int, int]:
@@ -305,10 +311,18 @@ def pair_frames(odometry):
     return {"a": to_gray(pair.image_a), "b": to_gray(pair.image_b)}
 
 
-def test_overview_shows_both_frames_the_ground_truth_and_the_comparison(inspected, pair_frames, tmp_path):
+def test_overview_then_a_click_on_an_estimator_tab(inspected, pair_frames, tmp_path):
+    """The overview (:func:`assert_overview_shows_both_frames_the_ground_truth_and_the_comparison`); then, in the
+    same page, a click on ransac's tab (:func:`assert_estimator_tab_shows_that_estimator_alone`)."""
+    with Shot(inspected, tmp_path / "overview.png", keep_open=True) as shot:
+        assert_overview_shows_both_frames_the_ground_truth_and_the_comparison(shot, inspected, pair_frames)
+        shot.open_tab("ransac", tmp_path / "tab-ransac.png")
+        assert_estimator_tab_shows_that_estimator_alone(shot, "ransac", inspected, pair_frames)
+
+
+def assert_overview_shows_both_frames_the_ground_truth_and_the_comparison(shot: "Shot", inspected, pair_frames) -> None:
     from fviz.record.reader import text
 
-    shot = Shot(inspected, tmp_path / "overview.png")
     assert_verdict_line_inside(shot, text(inspected, L.VERDICT)[0])  # above the tabs: "estimator: 8point fails ..."
     boxes = shot.frames(pair_frames, (0.0, 0.72))
     white, crops = {}, {}
@@ -350,11 +364,10 @@ def test_overview_shows_both_frames_the_ground_truth_and_the_comparison(inspecte
             assert n > 12, f"{name}'s epipole glyph not visible on image {v} ({n} px at {sx}, {sy}); {shot.context}"
 
 
-def test_an_estimator_tab_shows_that_estimator_alone(inspected, pair_frames, tmp_path):
-    """In Rerun's own web viewer (--web-static; fviz's clickable page does not apply the blueprint's class-id
-    override: docs/interactive.md)."""
-    name = "ransac"
-    shot = Shot(inspected, tmp_path / f"tab-{name}.png", "--tab", name, "--web-static")
+def assert_estimator_tab_shows_that_estimator_alone(shot: "Shot", name: str, inspected, pair_frames) -> None:
+    """Both frames; lines in that estimator's colour and white ground-truth lines over them, no other estimator's
+    colour on the frames, the keypoints in its residual classes (the blueprint's override); below image b its
+    numbers and the residual scale, not cut."""
     boxes = shot.frames(pair_frames)
     counts, crops = {}, {}
     for v, box in boxes.items():
@@ -368,15 +381,15 @@ def test_an_estimator_tab_shows_that_estimator_alone(inspected, pair_frames, tmp
                 assert counts[v][other] < 0.02 * counts[v][name], \
                     f"{other}'s colour on the {name} tab, image {v}: {counts[v]}; {shot.context}"
     assert_keypoints_in_classes_of(name, inspected, shot, crops)  # its classes (the blueprint's override), not gt's
-    # below image b, not cut: the estimator's numbers (a label: light text on a grey box) and the residual scale
+    # below image b, not cut: the estimator's numbers (a label, its text in LABEL_OFF_PHOTO) and the residual scale
     x, y, w, h = boxes["b"]
-    caption = shot.rgb[y + h + 4: y + h + 30, x + w // 4: x + 3 * w // 4].astype(int)
-    text = int(((caption.min(-1) > 170)).sum())  # the label's light box (dark text on it)
+    caption = shot.rgb[y + h + 4: y + h + 30, x + w // 4: x + 3 * w // 4]
+    text = int(near(caption, L.LABEL_OFF_PHOTO, 25).sum())  # the label's text (on its box, dark or light theme)
     scale = shot.rgb[y + h + 30: y + h + 62, x: x + w]
     bins = [int(near(scale, c, 25).sum()) for c in L.class_color(np.arange(L.RESIDUAL_CLASSES))]
     print(f"below image b: {text} text pixels in the caption band, residual scale pixels per bin {bins}")
     assert y + h + 62 <= shot.rgb.shape[0] - 30, f"image b and its footer run into the time panel; {shot.context}"
-    assert text > 300, f"no numbers below image b ({text} label pixels); {shot.context}"
+    assert text > 300, f"no numbers below image b ({text} text pixels); {shot.context}"
     assert sum(b > 20 for b in bins) >= L.RESIDUAL_CLASSES - 2, f"residual scale missing below image b: {bins}; {shot.context}"
 
 

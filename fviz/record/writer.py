@@ -236,7 +236,8 @@ def place_tags(wants: Sequence[np.ndarray], texts: Sequence[str], size: tuple[in
 
 
 LINE_PX, CROSS_PX = 0.9, 2.0  # radii of the epipolar lines and the epipole's cross, screen px (times screen_unit)
-LABEL_ON_PHOTO = (0, 0, 0)  # Rerun writes a label in its entity's colour on a light box over the photos: black reads
+LABEL_ON_PHOTO = (0, 0, 0)  # Rerun writes a label in its entity's colour on a translucent box over the photos: black reads
+# (below the images, off the photo: layout.LABEL_OFF_PHOTO)
 
 
 def _log_epipoles(rec, path: str, marks: list, clear: bool, size: tuple[int, int], extra=(), unit: float = 1.0) -> None:
@@ -268,7 +269,8 @@ def _log_epipoles(rec, path: str, marks: list, clear: bool, size: tuple[int, int
     rec.log(path, rr.LineStrips2D(halo + strips, colors=[(0, 0, 0)] * len(halo) + colors,
                                   radii=[3.2 * unit] * len(halo) + radii, labels=[""] * len(halo) + labels, show_labels=False,
                                   draw_order=40.0),
-            rr.Points2D(points, radii=0.1, colors=[LABEL_ON_PHOTO], labels=names, show_labels=True, draw_order=41.0),
+            rr.Points2D(points, radii=0.1, colors=[LABEL_ON_PHOTO] * len(marks) + [L.LABEL_OFF_PHOTO] * len(extra) or None,
+                        labels=names, show_labels=True, draw_order=41.0),
             *([rr.Arrows2D(origins=[a[0] for a in arrows] or np.zeros((0, 2)), vectors=[a[1] for a in arrows] or np.zeros((0, 2)),
                            colors=[a[2] for a in arrows] or None, radii=2.0)] if arrows or clear else []))
 
@@ -286,7 +288,7 @@ def caption_strip(size_a: tuple[int, int], size_b: tuple[int, int], r, result: P
     """The estimator's numbers below the images (in image b's frame), as a labelled invisible strip:
     (strip, colour, radius, label)."""
     at = L.below_images(size_a, size_b, 18.0)
-    return np.stack([at, at]), _rgb(LABEL_ON_PHOTO), 0.0, estimator_caption(r, result)
+    return np.stack([at, at]), _rgb(L.LABEL_OFF_PHOTO), 0.0, estimator_caption(r, result)
 
 
 def epipole_name_strip(cross: np.ndarray, label: str, size: tuple[int, int], unit: float = 1.0) -> tuple:
