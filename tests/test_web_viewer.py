@@ -384,16 +384,18 @@ def assert_estimator_tab_shows_that_estimator_alone(shot: "Shot", name: str, ins
     # below image b, not cut: the estimator's numbers (a label, its text in LABEL_OFF_PHOTO) and the residual scale
     x, y, w, h = boxes["b"]
     caption = shot.rgb[y + h + 4: y + h + 30, x + w // 4: x + 3 * w // 4]
-    text = int(near(caption, L.LABEL_OFF_PHOTO, 25).sum())  # the label's text (on its box, dark or light theme)
+    box = int(sum((np.abs(caption.astype(int) - np.array(c)).max(-1) <= 3).sum() for c in LABEL_BOXES))
+    text = int(near(caption, L.LABEL_OFF_PHOTO, 40).sum())  # the label's text on its box (dark or light theme)
     scale = shot.rgb[y + h + 30: y + h + 62, x: x + w]
     bins = [int(near(scale, c, 25).sum()) for c in L.class_color(np.arange(L.RESIDUAL_CLASSES))]
-    print(f"below image b: {text} text pixels in the caption band, residual scale pixels per bin {bins}")
+    print(f"below image b: {box} label-box and {text} text pixels in the caption band, residual scale pixels per bin {bins}")
     assert y + h + 62 <= shot.rgb.shape[0] - 30, f"image b and its footer run into the time panel; {shot.context}"
-    assert text > 300, f"no numbers below image b ({text} text pixels); {shot.context}"
+    assert box > 2000 and text > 100, f"no numbers below image b ({box} label-box, {text} text pixels); {shot.context}"
     assert sum(b > 20 for b in bins) >= L.RESIDUAL_CLASSES - 2, f"residual scale missing below image b: {bins}; {shot.context}"
 
 
-LABEL_BOX = (28, 28, 28)  # the box of a label Rerun draws beside a mark
+LABEL_BOX = (28, 28, 28)  # the box of a label Rerun draws beside a mark, over the view's background (dark theme)
+LABEL_BOXES = (LABEL_BOX, (239, 239, 239))  # dark theme, light theme
 VIEW_SEPARATOR = (53, 52, 52)  # the viewer's 2 px lines between views
 
 
