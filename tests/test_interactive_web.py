@@ -121,7 +121,10 @@ def line_pixels(rgb: np.ndarray, page: Page, view: str, line: np.ndarray, color,
     farther than ``clear`` screen px from ``epipole`` (homogeneous, image px): every epipolar line passes through
     its epipole, where the F's glyph and name are drawn whether or not a line is."""
     h, w = rgb.shape[:2]
-    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    # only the screen pixels around the image (a tenth of the screen: the whole screen took ~1.4 s a call)
+    (x0, y0), (x1, y1) = page.screen(view, [(-1.0, -1.0), (size[0], size[1])])
+    x0, y0, x1, y1 = max(int(x0), 0), max(int(y0), 0), min(int(np.ceil(x1)) + 1, w), min(int(np.ceil(y1)) + 1, h)
+    yy, xx = np.mgrid[y0:y1, x0:x1].astype(np.float64)
     # screen -> image pixels
     off = 0.0 if view == "a" else L.offset_b(page.size_a)[1]
     u = (xx - page.x) / page.scale - 0.5
@@ -131,7 +134,7 @@ def line_pixels(rgb: np.ndarray, page: Page, view: str, line: np.ndarray, color,
         ex, ey = epipole[:2] / epipole[2]
         inside &= np.hypot(u - ex, v - ey) * page.scale > clear
     d = np.abs(line[0] * u + line[1] * v + line[2]) / np.hypot(line[0], line[1]) * page.scale
-    return int((near(rgb, color) & inside & (d < band)).sum())
+    return int((near(rgb[y0:y1, x0:x1], color) & inside & (d < band)).sum())
 
 
 def colored_in_b(rgb: np.ndarray, page: Page, size_b) -> int:
