@@ -289,9 +289,22 @@ class Chromium:
                 self.events.append(msg)
         raise TimeoutError(f"{method}: no answer in {timeout} s")
 
-    def evaluate(self, expression: str):
+    def evaluate(self, expression: str, timeout: float = 120):
         """The value of a JavaScript expression in the page."""
-        return self.call("Runtime.evaluate", {"expression": expression, "returnByValue": True})["result"].get("value")
+        return self.call("Runtime.evaluate", {"expression": expression, "returnByValue": True}, timeout)["result"].get("value")
+
+    def click(self, at, hover: float = 1.5) -> float:
+        """A left click at screen ``at``: the pointer moves there and rests ``hover`` s (a frame or two: the viewer
+        picks what is under the pointer), then press and release back to back (Rerun's viewer takes a press and
+        release further apart than 0.8 s of its clock for a drag; frames are slow in software). -> the time of the
+        press (monotonic)."""
+        x, y = map(float, at)
+        self.call("Input.dispatchMouseEvent", {"type": "mouseMoved", "x": x, "y": y})
+        time.sleep(hover)
+        t = time.monotonic()
+        for kind in ("mousePressed", "mouseReleased"):
+            self.call("Input.dispatchMouseEvent", {"type": kind, "x": x, "y": y, "button": "left", "buttons": 1, "clickCount": 1})
+        return t
 
     def webgl_renderer(self) -> str | None:
         """The renderer behind the page's WebGL2 (None: no WebGL2)."""

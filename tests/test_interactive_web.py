@@ -36,10 +36,6 @@ def inspected(kitti_root, tmp_path_factory):
     return out, {e["name"]: np.array(e["F"]) for e in res["estimators"] if e["F"] is not None}
 
 
-def evaluate(b: Chromium, expr: str):
-    return b.call("Runtime.evaluate", {"expression": expr, "returnByValue": True}, timeout=120)["result"].get("value")
-
-
 def shot(b: Chromium) -> np.ndarray:
     for attempt in range(5):
         try:
@@ -65,7 +61,7 @@ class Page:
 def open_page(b: Chromium, path, frame_a: np.ndarray | None = None) -> Page:
     """Wait until the page has the recording and the viewer has drawn it; find image a on the screen."""
     end = time.monotonic() + budget()
-    while not (evaluate(b, "window.fviz && window.fviz.received") or 0) >= 1:
+    while not (b.evaluate("window.fviz && window.fviz.received") or 0) >= 1:
         assert time.monotonic() < end, f"the page got no recording: {b.console_errors()[:3]}"
         time.sleep(1)
     b.wait_stable(viewer_rendered, timeout=budget())
@@ -80,23 +76,10 @@ def open_page(b: Chromium, path, frame_a: np.ndarray | None = None) -> Page:
     return Page(x, y, s, (frame_a.shape[1], frame_a.shape[0]))
 
 
-def click(b: Chromium, at) -> float:
-    """A left click at screen ``at``: the pointer moves there, then press and release back to back (Rerun's
-    viewer takes a press and release further apart than 0.8 s of its clock for a drag; frames are slow in
-    software). -> the time of the press (monotonic)."""
-    x, y = map(float, at)
-    b.call("Input.dispatchMouseEvent", {"type": "mouseMoved", "x": x, "y": y})
-    time.sleep(1.5)  # a frame or two: the viewer picks what is under the pointer
-    t = time.monotonic()
-    for kind in ("mousePressed", "mouseReleased"):
-        b.call("Input.dispatchMouseEvent", {"type": kind, "x": x, "y": y, "button": "left", "buttons": 1, "clickCount": 1})
-    return t
-
-
 def wait_received(b: Chromium, n: int, timeout: float | None = None) -> bool:
     """Until the page has received ``n`` messages from fviz (the recording is the first; each click adds one)."""
     end = time.monotonic() + (budget() if timeout is None else timeout)
-    while (evaluate(b, "window.fviz.received") or 0) < n:
+    while (b.evaluate("window.fviz.received") or 0) < n:
         if time.monotonic() > end:
             return False
         time.sleep(0.2)
@@ -106,13 +89,13 @@ def wait_received(b: Chromium, n: int, timeout: float | None = None) -> bool:
 def click_answered(b: Chromium, at, tries: int = 4) -> float:
     """Click at ``at`` until fviz's answer reaches the page (the viewer's first click can go to focusing its
     canvas; a click repeated on the same spot draws the same). -> the time of the answered press."""
-    n = evaluate(b, "window.fviz.received")
+    n = b.evaluate("window.fviz.received")
     for _ in range(tries):
-        t = click(b, at)
+        t = b.click(at)
         if wait_received(b, n + 1, budget() / (2 * tries)):
             return t
     raise AssertionError(f"no click answer reached the page after {tries} clicks "
-                         f"(events sent by the page: {evaluate(b, 'window.fviz.events.length')})")
+                         f"(events sent by the page: {b.evaluate('window.fviz.events.length')})")
 
 
 def line_pixels(rgb: np.ndarray, page: Page, view: str, line: np.ndarray, color, size, band: float = 2.5,
@@ -150,10 +133,10 @@ def click_keypoint(b: Chromium, page: Page, j: int, fs) -> dict:
     -> ms from the press to the bytes reaching the page (the page's clock) and to the first screenshot with
     more estimator colour in image b (screenshots polled: each takes a good part of that on software GL)."""
     before = colored_in_b(shot(b), page, fs.size_b)
-    evaluate(b, "window.fviz.t_received = null; window.fviz.t_press = null; "
+    b.evaluate("window.fviz.t_received = null; window.fviz.t_press = null; "
                 "document.addEventListener('pointerdown', () => { window.fviz.t_press = performance.now(); }, {once: true, capture: true}); 0")
     t = click_answered(b, page.screen("a", fs.x_a[j]))
-    page_ms = evaluate(b, "window.fviz.t_received - window.fviz.t_press")
+    page_ms = b.evaluate("window.fviz.t_received - window.fviz.t_press")
     end = time.monotonic() + budget()
     while time.monotonic() < end:
         if abs(colored_in_b(shot(b), page, fs.size_b) - before) > 50:

@@ -19,7 +19,6 @@ Missing /usr/bin/chromium skips locally and fails when CI=true (``.ci/install-br
 from __future__ import annotations
 
 import os
-import time
 
 import numpy as np
 import pytest
@@ -168,10 +167,7 @@ class Shot:
         before = self.rgb.astype(np.int16)
         changed = lambda rgb: viewer_rendered(rgb) and float(np.abs(rgb.astype(np.int16) - before).mean()) > 2.0  # noqa: E731
         for attempt in range(tries):
-            self.browser.call("Input.dispatchMouseEvent", {"type": "mouseMoved", "x": x, "y": y})
-            time.sleep(0.5)
-            for kind in ("mousePressed", "mouseReleased"):
-                self.browser.call("Input.dispatchMouseEvent", {"type": kind, "x": x, "y": y, "button": "left", "buttons": 1, "clickCount": 1})
+            self.browser.click((x, y), hover=0.5)
             print(f"clicked tab {name!r} at ({x}, {y})")
             self._settle(path, changed, budget() / tries, check=attempt == tries - 1)
             if changed(self.rgb):
