@@ -98,28 +98,24 @@ def overlay(rgb: np.ndarray, frame: np.ndarray, box: tuple[int, int, int, int]) 
     return crop.astype(np.uint8), drawn
 
 
-def tab_centres(rgb: np.ndarray, n: int, gap: int = 14) -> list[tuple[int, int]]:
-    """Screen centres of the ``n`` tab titles in the viewer's tab bar, left to right: the first band of rows below
-    Rerun's top bar whose ink (pixels far from the band's background, light or dark theme: icon and title a few
-    px apart) makes exactly ``n`` groups more than ``gap`` px apart, the first at the window's left edge (a line
-    of text is one group), in the left 60 % of the window (the bar's own icons are at its right end)."""
+def tab_centres(rgb: np.ndarray, n: int, gap: int = 8) -> list[tuple[int, int]]:
+    """Screen centres of the ``n`` tab titles in the viewer's tab bar, left to right: the first run (from the top,
+    below Rerun's top bar) of at least 3 bands of 12 rows whose ink (pixels far from the band's background, light or
+    dark theme) makes exactly ``n`` groups more than ``gap`` px apart (a tab's icon and title are ~5 px apart, a
+    highlighted tab's box ~9 px from the next title), the first at the window's left edge, in the left 60 % of the
+    window (the bar's own icons are at its right end)."""
     left = rgb[:, : int(0.6 * rgb.shape[1])].astype(np.int16)
-    found = []  # runs of consecutive bands with n groups: [(top row of the band, its groups)]
+    runs: list[list] = []  # consecutive bands with n groups: [(top row of the band, its groups)]
     for y in range(40, rgb.shape[0] // 3, 2):
         band = left[y: y + 12]
-        ink = np.abs(band - np.median(band.reshape(-1, 3), 0)).max(-1) > 60
-        cols = np.flatnonzero(ink.any(0))
+        cols = np.flatnonzero((np.abs(band - np.median(band.reshape(-1, 3), 0)).max(-1) > 60).any(0))
         groups = np.split(cols, np.flatnonzero(np.diff(cols) > gap) + 1) if len(cols) else []
         if len(cols) and cols[0] <= 40 and len(groups) == n and all(len(g) > 4 for g in groups):
-            if found and found[-1][-1][0] != y - 2:
-                if len(found[-1]) >= 6:  # a bar's height (12 px of titles and icons) was seen
-                    break
-                found.pop()
-            if not found or found[-1][-1][0] != y - 2:
-                found.append([])
-            found[-1].append((y, groups))
-    run = max(found, key=len, default=[])
-    if len(run) < 3:
+            if not runs or runs[-1][-1][0] != y - 2:
+                runs.append([])
+            runs[-1].append((y, groups))
+    run = next((r for r in runs if len(r) >= 3), None)
+    if run is None:
         raise AssertionError(f"no bar of {n} tabs found")
     y, groups = run[len(run) // 2]  # the band through the titles' middle
     return [(int(g[0] + g[-1]) // 2, y + 6) for g in groups]
