@@ -6,6 +6,7 @@ import atexit
 import csv
 import json
 import os
+import resource
 import select
 import signal
 import subprocess
@@ -72,13 +73,14 @@ class _ForkServer:
         line, self.pending = self.pending.split(b"\n", 1)
         return json.loads(line)
 
-    def run(self, argv, cwd, timeout) -> subprocess.CompletedProcess:
+    def run(self, argv, cwd, timeout, env, file_size_limit) -> subprocess.CompletedProcess:
         with self.lock, tempfile.TemporaryDirectory(prefix="fviz-cli-") as tmp:
             out, err = Path(tmp, "stdout"), Path(tmp, "stderr")
             out.touch()
             err.touch()
-            self.proc.stdin.write(json.dumps({"argv": ["fviz", *argv], "cwd": str(cwd or os.getcwd()),
-                                              "env": dict(os.environ), "stdout": str(out), "stderr": str(err)}) + "\n")
+            self.proc.stdin.write(json.dumps({"argv": ["fviz", *argv], "cwd": str(cwd or os.getcwd()), "env": env,
+                                              "stdout": str(out), "stderr": str(err),
+                                              "file_size_limit": file_size_limit}) + "\n")
             pid = self._answer()["pid"]
             try:
                 code = self._answer(timeout)["returncode"]
@@ -92,14 +94,22 @@ class _ForkServer:
 _server: _ForkServer | None = None
 
 
-def run_fviz(*args, cwd=None, timeout=120):
+def run_fviz(*args, cwd=None, timeout=120, env=None, file_size_limit=None):
+    """``fviz ARGS`` in a process of its own: ``env`` its whole environment (default this one's);
+    ``file_size_limit``: bytes a file may grow to (past it a write fails with EFBIG, as on a full disk)."""
     global _server
     argv = [str(a) for a in args]
+    env = dict(os.environ if env is None else env)
     if os.environ.get("FVIZ_TEST_SUBPROCESS") == "1":
-        return subprocess.run([sys.executable, "-m", "fviz", *argv], capture_output=True, text=True, cwd=cwd, timeout=timeout)
+        def limit():
+            signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+            resource.setrlimit(resource.RLIMIT_FSIZE, (file_size_limit,) * 2)
+
+        return subprocess.run([sys.executable, "-m", "fviz", *argv], capture_output=True, text=True, cwd=cwd, env=env,
+                              timeout=timeout, preexec_fn=None if file_size_limit is None else limit)
     if _server is None or _server.proc.poll() is not None:
         _server = _ForkServer()
-    return _server.run(argv, cwd, timeout)
+    return _server.run(argv, cwd, timeout, env, file_size_limit)
 
 
 def assert_one_line_error(proc, code, *fragments):

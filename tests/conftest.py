@@ -25,6 +25,11 @@ if os.environ.get("CI", "").lower() == "true":
 if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
     signal.signal(signal.SIGINT, signal.default_int_handler)
 
+# One test process per core already (pytest-xdist): OpenMP, BLAS and OpenCV threads in each, and in every fviz
+# they start, would only wait on each other (~5-10 % of the suite's CPU). A user's setting is kept.
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "OPENCV_FOR_THREADS_NUM"):
+    os.environ.setdefault(_var, "1")
+
 
 def _kitti_root() -> Path:
     return Path(os.environ.get("FVIZ_KITTI_ROOT", PROJECT.parent / "shared" / "data" / "kitti"))

@@ -275,13 +275,11 @@ def test_debug_keeps_a_user_estimators_traceback(tmp_path):
         "def helper():\n    raise RuntimeError('my estimator crashed')\n\n\ndef crash(pair, x_a, x_b):\n    return helper()\n")
     common = ("inspect", "pair", "--synthetic", "--seed", "0", "-e", "crash_mod:crash", "-e", "ransac", "--probe", "0")
     import os
-    import subprocess
 
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path), *sys.path])}  # this checkout's fviz, and the module
 
     def fviz(*args):
-        return subprocess.run([sys.executable, "-m", "fviz", *map(str, args)], capture_output=True, text=True, env=env,
-                              timeout=300)
+        return run_fviz(*args, env=env, timeout=300)
 
     plain = fviz(*common, "--json", "--out", tmp_path / "a.rrd")
     debug = fviz("--debug", *common, "--json", "--out", tmp_path / "b.rrd")

@@ -60,7 +60,6 @@ def test_a_pair_without_ground_truth_whose_every_estimator_fails_is_still_record
     """No F at all (no ground truth, the only estimator raised): the probe has nothing to draw and says so, the failure is
     reported in one line and the recording is written, without a traceback."""
     import os
-    import subprocess
     import sys
 
     from fviz.record import layout as L
@@ -71,9 +70,8 @@ def test_a_pair_without_ground_truth_whose_every_estimator_fails_is_still_record
     images = fountain() / "images"
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path), *sys.path])}
     out = tmp_path / "p.rrd"
-    proc = subprocess.run([sys.executable, "-m", "fviz", "inspect", "pair", "--image-a", str(images / "0000.jpg"),
-                           "--image-b", str(images / "0001.jpg"), "-e", "crash_mod:crash", "--out", str(out)],
-                          capture_output=True, text=True, env=env, timeout=600)
+    proc = run_fviz("inspect", "pair", "--image-a", images / "0000.jpg", "--image-b", images / "0001.jpg",
+                    "-e", "crash_mod:crash", "--out", out, env=env, timeout=600)
     assert "Traceback" not in proc.stderr, proc.stderr
     assert proc.returncode == 1 and "my estimator crashed" in proc.stdout + proc.stderr
     assert "my estimator crashed" in "\n".join(text(out, L.SUMMARY))

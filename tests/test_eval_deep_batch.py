@@ -3,11 +3,10 @@
 
 import json
 import os
-import subprocess
-import sys
 
 import numpy as np
 import pytest
+from cli_util import run_fviz
 
 from fviz.geometry import f_distance
 
@@ -16,10 +15,9 @@ pytestmark = [pytest.mark.kitti, pytest.mark.slow]
 
 def eval_run(kitti_root, out, mode):
     env = dict(os.environ, FVIZ_DEEP_BATCH=mode)
-    proc = subprocess.run(
-        [sys.executable, "-m", "fviz", "eval", "--kitti-root", str(kitti_root), "--sequence", "00", "--pair", "temporal",
-         "--frames", "0:9", "-e", "deep", "-e", "8point", "--features", "orb", "--max-keypoints", "400", "--workers", "2",
-         "--no-progress", "--out-dir", str(out)], capture_output=True, text=True, env=env, timeout=600)
+    proc = run_fviz("eval", "--kitti-root", kitti_root, "--sequence", "00", "--pair", "temporal", "--frames", "0:9",
+                    "-e", "deep", "-e", "8point", "--features", "orb", "--max-keypoints", "400", "--workers", "2",
+                    "--no-progress", "--out-dir", out, env=env, timeout=600)
     assert proc.returncode == 0, proc.stderr
     return {r["key"]: {e["name"]: e for e in r["result"]["estimators"]} for r in map(json.loads, open(out / "results.jsonl"))}
 

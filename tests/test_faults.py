@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import json
 import os
-import resource
 import signal
 import socket
 import stat
@@ -17,7 +16,7 @@ import time
 from pathlib import Path
 
 import pytest
-from cli_util import assert_one_line_error, read_csv
+from cli_util import assert_one_line_error, read_csv, run_fviz
 
 from fviz.record.reader import open_rrd, read_recording
 
@@ -34,9 +33,10 @@ def fviz_env(**extra: str) -> dict[str, str]:
     return env
 
 
-def fviz(*args, env=None, preexec_fn=None, timeout=300) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "fviz", *map(str, args)], capture_output=True, text=True,
-                          env=env or fviz_env(), preexec_fn=preexec_fn, timeout=timeout)
+def fviz(*args, env=None, file_size_limit=None, timeout=300) -> subprocess.CompletedProcess:
+    """``fviz ARGS``, finished; ``file_size_limit``: bytes a file may grow to (past it a write fails with EFBIG,
+    SIGXFSZ ignored, as a full disk fails with ENOSPC)."""
+    return run_fviz(*args, env=env or fviz_env(), file_size_limit=file_size_limit, timeout=timeout)
 
 
 def start(*args, env, prefix=("-m", "fviz")) -> subprocess.Popen:
@@ -224,17 +224,6 @@ def test_ctrl_c_anywhere_says_what_was_kept(tmp_path):
 # ------------------------------------------------------------------------------ item 10: disk full
 
 
-def _file_size_limit(limit: int):
-    """preexec_fn: files may grow to ``limit`` bytes; past it a write fails with EFBIG (SIGXFSZ ignored),
-    as a full disk fails with ENOSPC."""
-
-    def apply():
-        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
-        resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
-
-    return apply
-
-
 def _without_volatile(rows):
     return [{k: v for k, v in row.items() if k != "seconds"} for row in rows]
 
@@ -252,7 +241,7 @@ def test_disk_full_mid_run_is_one_line_and_resume_finishes(reference, tmp_path):
     out = tmp_path / "run"
     lines = (reference / "results.jsonl").read_bytes().splitlines(keepends=True)
     limit = len(lines[0]) + len(lines[1]) // 2  # the second record does not fit (without --full's larger payloads)
-    r = fviz("eval", *SYNTHETIC, "-e", "8point", "--out-dir", out, preexec_fn=_file_size_limit(limit))
+    r = fviz("eval", *SYNTHETIC, "-e", "8point", "--out-dir", out, file_size_limit=limit)
     assert_one_line_error(r, 2, f"cannot write {out / 'results.jsonl'}: file too large",
                           f"fviz eval --out-dir {out} --resume")
     assert leftovers(out) == []
@@ -271,7 +260,7 @@ def test_disk_full_while_writing_reports_keeps_the_previous_ones(reference, tmp_
     # the feature cache (features.h5, matches.h5) is not rewritten by a resume that computes nothing
     small = max(p.stat().st_size for p in out.rglob("*") if p.is_file() and p.name not in ("eval.rrd", "features.h5", "matches.h5"))
     assert (out / "eval.rrd").stat().st_size > small + 4096  # only the recording outgrows the limit
-    r = fviz("eval", "--out-dir", out, "--resume", "--no-progress", preexec_fn=_file_size_limit(small + 4096))
+    r = fviz("eval", "--out-dir", out, "--resume", "--no-progress", file_size_limit=small + 4096)
     assert_one_line_error(r, 2, f"cannot write {out / 'eval.rrd'}: file too large", "eval.rrd kept its previous version",
                           f"fviz eval --out-dir {out} --resume")
     assert (out / "eval.rrd").read_bytes() == before["eval.rrd"]

@@ -6,11 +6,9 @@ from __future__ import annotations
 
 import json
 import os
-import subprocess
-import sys
 from pathlib import Path
 
-from cli_util import read_csv
+from cli_util import read_csv, run_fviz
 
 PROJECT = Path(__file__).resolve().parents[1]
 FAULTS = Path(__file__).parent / "faults"
@@ -20,8 +18,7 @@ INSPECT = ("inspect", "pair", "--synthetic", "--seed", "0", *FAST)
 
 def fviz(*args, cwd=PROJECT, timeout=600):
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(PROJECT), str(FAULTS), os.environ.get("PYTHONPATH", "")]))
-    return subprocess.run([sys.executable, "-m", "fviz", *map(str, args)], capture_output=True, text=True, env=env,
-                          cwd=cwd, timeout=timeout)
+    return run_fviz(*args, cwd=cwd, timeout=timeout, env=env)
 
 
 def by_name(doc):
