@@ -2,11 +2,10 @@
 headless Chromium driven over the DevTools protocol.
 
 Debian's chromium at /usr/bin/chromium (``.ci/install-browser``); missing: skip locally, fail when CI=true.
-Software rendering so that WebGL works without a GPU: Mesa's llvmpipe where Chromium can use it (Rerun's viewer
-settles in ~21 s and ~31 s of CPU on an idle 2-core machine, against ~37 s and ~59 s with SwiftShader: most of
-SwiftShader's time goes to the GPU process), else Chromium's own SwiftShader; ``FVIZ_BROWSER_GL=swiftshader``
-forces the latter. Every process started here runs in its
-own process group and is killed, with its group, by ``close()`` (use the context managers).
+Software rendering so that WebGL works without a GPU: Mesa's llvmpipe where Chromium can use it (fviz's page
+settles in ~12 s and ~20 s of CPU on an idle 2-core machine; with SwiftShader the GPU process alone took ~35 s),
+else Chromium's own SwiftShader; ``FVIZ_BROWSER_GL=swiftshader`` forces the latter. Every process started here
+runs in its own process group and is killed, with its group, by ``close()`` (use the context managers).
 """
 
 from __future__ import annotations

@@ -206,7 +206,7 @@ def test_numbers_and_scale_are_not_occluded(shaped, shape, tmp_path):
     from test_web_viewer import Shot
 
     path, doc = shaped[shape]
-    with Shot(path, tmp_path / f"{shape.replace(':', '')}-ransac.png", "--tab", "ransac", "--web-static", keep_open=True) as shot:
+    with Shot(path, tmp_path / f"{shape.replace(':', '')}-ransac.png", "--tab", "ransac", keep_open=True) as shot:
         assert_numbers_and_scale_in_view(shot, path)
         if shape == "3072x2048":
             shot.open_tab("probe", tmp_path / "3072-probe.png")
@@ -215,20 +215,21 @@ def test_numbers_and_scale_are_not_occluded(shaped, shape, tmp_path):
 
 def assert_numbers_and_scale_in_view(shot, path) -> None:
     """Both images side by side and large, and below them, inside the view (above the time panel), the numbers
-    (a light label box) and every bin of the residual scale, clear of the images."""
-    from test_web_viewer import near
+    (a label box, its text in LABEL_OFF_PHOTO) and every bin of the residual scale, clear of the images."""
+    from test_web_viewer import LABEL_BOXES, near
 
     boxes = side_by_side_boxes(shot, frames_of(path))
     assert min(b[2] for b in boxes.values()) > 400, f"images small: {boxes}; {shot.context}"
     x0, x1 = boxes["a"][0], boxes["b"][0] + boxes["b"][2]
     bottom = max(b[1] + b[3] for b in boxes.values())
     # the footer (FOOTER_PX screen px or more below the images) between the images and the time panel (its
-    # bottom ~40 px of the window): the numbers (a light label box, dark text on it) and the scale's bins
+    # bottom ~40 px of the window): the numbers (a label box, either theme's, text on it) and the scale's bins
     footer = shot.rgb[bottom + 6: shot.rgb.shape[0] - 40, x0: x1]
-    text = int((footer.min(-1) > 170).sum())
+    box = int(sum((np.abs(footer.astype(int) - np.array(c)).max(-1) <= 3).sum() for c in LABEL_BOXES))
+    text = int(near(footer, L.LABEL_OFF_PHOTO, 40).sum())
     bins = [int(near(footer, c, 25).sum()) for c in L.class_color(np.arange(L.RESIDUAL_CLASSES))]
-    print(f"below the images (bottom {bottom}): {text} label pixels, residual scale pixels per bin {bins}")
-    assert text > 1500, f"no numbers below the images ({text} label pixels); {shot.context}"
+    print(f"below the images (bottom {bottom}): {box} label-box and {text} text pixels, residual scale pixels per bin {bins}")
+    assert box > 2000 and text > 100, f"no numbers below the images ({box} label-box, {text} text pixels); {shot.context}"
     assert all(b > 20 for b in bins), f"residual scale cut or missing: {bins}; {shot.context}"
 
 

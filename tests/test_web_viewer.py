@@ -136,9 +136,13 @@ class Shot:
             canvas = self.browser.evaluate("(() => { const r = document.querySelector('canvas').getBoundingClientRect();"
                                            " return [r.left, r.top, r.width, r.height]; })()")
             assert canvas == [0, 0, *self.rgb.shape[1::-1]], f"the viewer does not fill the window: {canvas}; {self.context}"
-        finally:
-            if not keep_open:
-                self.close()
+            logged = [e["params"]["type"] for e in self.browser.events if e["method"] == "Runtime.consoleAPICalled"]
+            assert "debug" not in logged and len(logged) < 100, f"{len(logged)} console lines ({logged.count('debug')} debug)"
+        except BaseException:
+            self.close()  # a failed start leaves no page or server behind (``with`` never got the object)
+            raise
+        if not keep_open:
+            self.close()
 
     def _settle(self, path, ready, timeout: float | None = None, check: bool = True) -> None:
         timeout = budget() if timeout is None else timeout
@@ -171,10 +175,11 @@ class Shot:
         raise AssertionError(f"a click on tab {name!r} at ({x}, {y}) changed nothing; {self.context}")
 
     def close(self) -> None:
-        if self.browser is not None:
-            self.browser.close()
-        if self.server is not None:
-            self.server.close()
+        browser, server, self.browser, self.server = self.browser, self.server, None, None
+        if browser is not None:
+            browser.close()
+        if server is not None:
+            server.close()
 
     def __enter__(self) -> "Shot":
         return self
