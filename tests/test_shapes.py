@@ -202,15 +202,22 @@ def side_by_side_boxes(shot, frames, width: float = 1.0) -> dict[str, tuple[int,
 @pytest.mark.parametrize("shape", ["3072x2048", "portrait"])
 def test_numbers_and_scale_are_not_occluded(shaped, shape, tmp_path):
     """An estimator's tab of a 3072x2048 and of a portrait pair (:func:`assert_numbers_and_scale_in_view`); on the
-    3072 pair, a click on the probe tab then, in the same page (:func:`assert_probe_rings_and_zoomed_ends`)."""
-    from test_web_viewer import Shot
+    3072 pair, a click on the probe tab then, in the same page (:func:`assert_probe_rings_and_zoomed_ends`). The
+    portrait pair opens on the overview, whose images fill the view's height: the residual scale's end labels
+    under both whole, then a click on ransac's tab."""
+    from test_web_viewer import Shot, assert_scale_end_labels_whole
 
     path, doc = shaped[shape]
-    with Shot(path, tmp_path / f"{shape.replace(':', '')}-ransac.png", "--tab", "ransac", keep_open=True) as shot:
+    if shape == "portrait":
+        with Shot(path, tmp_path / "portrait-overview.png", keep_open=True) as shot:
+            assert_scale_end_labels_whole(shot, side_by_side_boxes(shot, frames_of(path), width=0.72))
+            shot.open_tab("ransac", tmp_path / "portrait-ransac.png")
+            assert_numbers_and_scale_in_view(shot, path)
+        return
+    with Shot(path, tmp_path / "3072x2048-ransac.png", "--tab", "ransac", keep_open=True) as shot:
         assert_numbers_and_scale_in_view(shot, path)
-        if shape == "3072x2048":
-            shot.open_tab("probe", tmp_path / "3072-probe.png")
-            assert_probe_rings_and_zoomed_ends(shot, path, doc)
+        shot.open_tab("probe", tmp_path / "3072-probe.png")
+        assert_probe_rings_and_zoomed_ends(shot, path, doc)
 
 
 def assert_numbers_and_scale_in_view(shot, path) -> None:

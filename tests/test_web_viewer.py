@@ -328,16 +328,7 @@ def assert_overview_shows_both_frames_the_ground_truth_and_the_comparison(shot: 
         white[v] = int((near(crop, COLORS["gt"]) & drawn).sum())
         assert white[v] > 300, f"{white[v]} white ground-truth line pixels on image {v}; {shot.context}"
     assert_keypoints_in_classes_of("gt", inspected, shot, crops)
-    # below image b, the residual scale's two end labels whole, never cut by the time panel (Rerun's label boxes:
-    # grey LABEL_BOX, dark text, ~21 px high)
-    import cv2
-
-    x, y, w, h = boxes["b"]
-    band = shot.rgb[y + h: y + h + 120, x: x + w].astype(int)
-    n, _, st, _ = cv2.connectedComponentsWithStats((np.abs(band - LABEL_BOX).max(-1) <= 3).astype(np.uint8))
-    ends = sorted((int(st[i, 0]), int(st[i, 3])) for i in range(1, n) if st[i, 4] > 1000)  # (left, height)
-    print(f"residual scale's end labels below image b (left x, height): {ends}")
-    assert len(ends) == 2 and all(eh >= 18 for _, eh in ends), f"scale labels cut or missing: {ends}; {shot.context}"
+    assert_scale_end_labels_whole(shot, boxes)
     # the comparison chart (right column, top): one bar per F in its colour, the ground truth's white included
     h, w = shot.rgb.shape[:2]
     chart = (int(0.72 * w), 60, w - int(0.72 * w), int(0.5 * h))
@@ -389,6 +380,20 @@ def assert_estimator_tab_shows_that_estimator_alone(shot: "Shot", name: str, ins
     assert y + h + 62 <= shot.rgb.shape[0] - 30, f"image b and its footer run into the time panel; {shot.context}"
     assert box > 2000 and text > 100, f"no numbers below image b ({box} label-box, {text} text pixels); {shot.context}"
     assert sum(b > 20 for b in bins) >= L.RESIDUAL_CLASSES - 2, f"residual scale missing below image b: {bins}; {shot.context}"
+
+
+def assert_scale_end_labels_whole(shot: "Shot", boxes: dict) -> None:
+    """Below the images (``boxes``: {view: (x, y, w, h)} on screen, the overview), the residual scale's two end
+    labels whole, never cut by the time panel (Rerun's label boxes: grey LABEL_BOX, dark text, ~23 px high)."""
+    import cv2
+
+    x0, x1 = min(b[0] for b in boxes.values()), max(b[0] + b[2] for b in boxes.values())
+    bottom = max(b[1] + b[3] for b in boxes.values())
+    band = shot.rgb[bottom: bottom + 120, x0: x1].astype(int)
+    n, _, st, _ = cv2.connectedComponentsWithStats((np.abs(band - LABEL_BOX).max(-1) <= 3).astype(np.uint8))
+    ends = sorted((int(st[i, 0]), int(st[i, 3])) for i in range(1, n) if st[i, 4] > 1000)  # (left, height)
+    print(f"residual scale's end labels below the images (left x, height): {ends}")
+    assert len(ends) == 2 and all(eh >= 18 for _, eh in ends), f"scale labels cut or missing: {ends}; {shot.context}"
 
 
 LABEL_BOX = (28, 28, 28)  # the box of a label Rerun draws beside a mark, over the view's background (dark theme)

@@ -317,7 +317,7 @@ MOTION_TRACKS = (
 VIEW_PX = (1140.0, 820.0)  # below the verdict line (~60 px)
 ARRANGE_VIEW_PX = (1400.0, 820.0)
 GAP_PX = 24.0  # screen px between image a and image b
-FOOTER_PX = 64.0  # screen px below the images: the estimator's numbers and the residual scale
+FOOTER_PX = 76.0  # screen px below the images: the estimator's numbers and the residual scale (its end labels reach ~70)
 MARGIN_PX = 12.0  # screen px left, right and above the images: an epipole's glyph on their border shows whole
 
 
