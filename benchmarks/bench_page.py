@@ -35,16 +35,16 @@ COUNT_DEBUG = ("window.__debug_lines = 0; const debug = console.debug.bind(conso
 def chromium_cpu(pid: int) -> float:
     """CPU seconds of a Chromium and every process below it."""
     import psutil
+    from browser import process_tree
 
-    root = psutil.Process(pid)
-    total = 0.0
-    for p in (root, *root.children(recursive=True)):
+    def cpu(p) -> float:
         try:
             t = p.cpu_times()
-            total += t.user + t.system
-        except psutil.NoSuchProcess:
-            pass
-    return total
+        except psutil.NoSuchProcess:  # a helper process that ended meanwhile
+            return 0.0
+        return t.user + t.system
+
+    return sum(map(cpu, process_tree(pid)))
 
 
 def load(recording: Path, keep_debug: bool, listener: bool) -> tuple[float, float, int]:

@@ -111,9 +111,11 @@ GT = "gt"
 # ---------------------------------------------------------------------------------------------- colours
 
 GT_COLOR = (255, 255, 255)
-# Text below the images (the estimator's numbers, the residual scale's ends) sits on Rerun's label box over the view's
+# Rerun writes a label in its entity's colour on a translucent box over the photos: black reads there. Text below
+# the images (the estimator's numbers, the residual scale's ends) sits on Rerun's label box over the view's
 # background: dark grey (28) in the dark theme (fviz's page, the native viewer), light (239) in the light one (Rerun's
 # web viewer in a light browser). Mid grey reads on both (contrast ~3.9:1 each; black was 1.2:1 on the dark box).
+LABEL_ON_PHOTO = (0, 0, 0)
 LABEL_OFF_PHOTO = (120, 120, 120)
 PROBE_COLOR = (255, 220, 0)  # the probe's rings and join (no keypoints in that tab: no clash with the residual scale)
 # Fixed colours of the estimators fviz knows; chosen far (> 80 in RGB) from each other, from grey (the

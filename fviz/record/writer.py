@@ -236,8 +236,6 @@ def place_tags(wants: Sequence[np.ndarray], texts: Sequence[str], size: tuple[in
 
 
 LINE_PX, CROSS_PX = 0.9, 2.0  # radii of the epipolar lines and the epipole's cross, screen px (times screen_unit)
-LABEL_ON_PHOTO = (0, 0, 0)  # Rerun writes a label in its entity's colour on a translucent box over the photos: black reads
-# (below the images, off the photo: layout.LABEL_OFF_PHOTO)
 
 
 def _log_epipoles(rec, path: str, marks: list, clear: bool, size: tuple[int, int], extra=(), unit: float = 1.0) -> None:
@@ -269,7 +267,7 @@ def _log_epipoles(rec, path: str, marks: list, clear: bool, size: tuple[int, int
     rec.log(path, rr.LineStrips2D(halo + strips, colors=[(0, 0, 0)] * len(halo) + colors,
                                   radii=[3.2 * unit] * len(halo) + radii, labels=[""] * len(halo) + labels, show_labels=False,
                                   draw_order=40.0),
-            rr.Points2D(points, radii=0.1, colors=[LABEL_ON_PHOTO] * len(marks) + [L.LABEL_OFF_PHOTO] * len(extra) or None,
+            rr.Points2D(points, radii=0.1, colors=[L.LABEL_ON_PHOTO] * len(marks) + [L.LABEL_OFF_PHOTO] * len(extra) or None,
                         labels=names, show_labels=True, draw_order=41.0),
             *([rr.Arrows2D(origins=[a[0] for a in arrows] or np.zeros((0, 2)), vectors=[a[1] for a in arrows] or np.zeros((0, 2)),
                            colors=[a[2] for a in arrows] or None, radii=2.0)] if arrows or clear else []))
@@ -297,7 +295,7 @@ def epipole_name_strip(cross: np.ndarray, label: str, size: tuple[int, int], uni
     Rerun writes a label in its strip's colour: black, on its light box, reads on any photo."""
     at = cross.mean(axis=(0, 1))
     at = place_tags([at + (0.0, -34.0 * unit if at[1] > 50.0 * unit else 22.0 * unit)], [label], size, unit)[0]
-    return np.stack([at, at]), _rgb(LABEL_ON_PHOTO), 0.0, label
+    return np.stack([at, at]), _rgb(L.LABEL_ON_PHOTO), 0.0, label
 
 
 SCALE_STEP = 28.0  # one residual bin of the scale below the images, screen px
@@ -1082,7 +1080,7 @@ def log_reference(rec, pair: Pair, result: PairResult, colors: Colors, sub: np.n
     if n:  # the names: black on Rerun's light label box (text takes its strip's colour), top right of each image
         strips += [np.stack([at, at]) for at in (np.array([0.8 * pair.size_a[0], 22.0]),
                                                   np.array([0.8 * pair.size_b[0], 22.0]) + L.offset_b(pair.size_a))]
-    colors_ = [_rgb(colors[name])] * n + [_rgb(LABEL_ON_PHOTO)] * (len(strips) - n) if n else []
+    colors_ = [_rgb(colors[name])] * n + [_rgb(L.LABEL_ON_PHOTO)] * (len(strips) - n) if n else []
     rec.log(L.REFERENCE, rr.LineStrips2D(strips, colors=colors_ or None, radii=[L.REFERENCE_RADIUS] * n + [0.0] * (len(strips) - n),
                                          labels=[""] * n + [reference_label(name)] * (len(strips) - n) or None,
                                          show_labels=True, draw_order=35.0))
