@@ -25,6 +25,10 @@ Pair tags (thresholds are the constants below and in :mod:`fviz.diagnose`):
 - ``error``: a pair error (not evaluated: missing image, fewer than MIN_MATCHES matches) or an estimator raised;
 - ``few-matches``: fewer than FEW_MATCHES matches;
 - ``low-inliers``: the ranked estimator's inlier ratio is below LOW_INLIER_RATIO;
+- ``inputs-suspect``: the user's inputs explain the matches' misfit more cheaply than a wrong ground truth
+  (:func:`fviz.diagnose.input_mistake`: matches that F_gt explains INPUT_RATIO times better with a and b swapped or at
+  another scale, a K whose principal point is far from its image's centre); judged before ``gt-suspect``, which it
+  silences;
 - ``gt-suspect``: a property of the pair, whatever estimator ranks it (:func:`fviz.diagnose.gt_suspect`, the
   same verdict ``inspect`` prints): the ground truth explains the matches worse than the estimates do. Of the
   estimators fitting the matches with a consensus (inlier ratio >= GT_SUSPECT_INLIER_RATIO), the largest one's
@@ -82,7 +86,7 @@ from fviz.verdicts import (DEGENERATE_FRACTION, ERROR, FAIL_RULES, HIGHER_IS_BET
 from fviz.diagnose import (GT_SUSPECT_DIRECTION_DEG, GT_SUSPECT_DIRECTION_MARGIN_PX, GT_SUSPECT_EPIPOLE_NEAR,
                             GT_SUSPECT_FIT_PX, GT_SUSPECT_INLIER_RATIO, GT_SUSPECT_MARGIN_PX, GT_SUSPECT_RATIO,
                             GT_SUSPECT_ROTATION_DEG, HOMOGRAPHY_PX, PLANAR_FRACTION, ROTATION_FRACTION, ROTATION_PX,
-                            SMALL_BASELINE_M, STATIC_PX, gt_suspect)
+                            MIN_EVIDENCE, SMALL_BASELINE_M, STATIC_PX, gt_suspect, input_mistake)
 from fviz.errors import FvizError
 from fviz.estimators.registry import AHEAD, is_oracle, is_run_baseline
 from fviz.evaluate import EVAL_THRESHOLD_PX, GT_NAME
@@ -99,7 +103,7 @@ FAIL_SED_PX = FAIL_RULES["sed_median"].threshold
 FOCAL_OFF = 2.0
 COLMAP_TAGGED = ("planar", "panoramic", "planar_or_panoramic", "watermark", "degenerate")
 
-TAGS = ("error", "few-matches", "low-inliers", "gt-suspect", "planar", "small-baseline", "degenerate", "matcher",
+TAGS = ("error", "few-matches", "low-inliers", "inputs-suspect", "gt-suspect", "planar", "small-baseline", "degenerate", "matcher",
         "estimator", *(f"colmap-{c.replace('_', '-')}" for c in COLMAP_TAGGED), "focal-implausible")
 NOT_RANKING = {"f_dist": "unconditioned ||F - F_gt|| of pixel-coordinate F misranks estimators; "
                          "rank by sed_median, pose_err_deg or nsgd"}
@@ -134,6 +138,9 @@ def tag_pair(rec: dict[str, Any], by: str) -> list[tuple[str, str]]:
     ratio, ev = _nan_if_none(metrics.get("inlier_ratio")), diag["estimators"].get(by, {})
     if ratio < LOW_INLIER_RATIO:
         out.append(("low-inliers", f"{by} inlier ratio {ratio:.2f} < {LOW_INLIER_RATIO}"))
+    mistake = input_mistake(diag)
+    if mistake:
+        out.append(("inputs-suspect", f"{mistake['detail']}: {mistake['text']}"))
     suspect = gt_suspect(diag, res.get("estimators", []))
     if suspect:
         out.append(("gt-suspect", f"{suspect['why']}; reference: {suspect['reference']}"))
@@ -147,8 +154,9 @@ def tag_pair(rec: dict[str, Any], by: str) -> list[tuple[str, str]]:
     if static >= DEGENERATE_FRACTION:
         out.append(("degenerate", f"{static:.0%} of the matches move < {STATIC_PX:g} px (identical images?): any F "
                     "through the points fits, residuals and inlier counts mean nothing"))
-    suspect = any(t == "gt-suspect" for t, _ in out)  # judged against doubtful labels, neither is to blame
-    return out + ([] if suspect else blame_tags(rec, by)) + two_view_tags(rec, by)
+    # judged against doubtful labels or inputs, or on too few matches to be evidence, neither is to blame
+    doubtful = any(t in ("gt-suspect", "inputs-suspect") for t, _ in out) or n < MIN_EVIDENCE
+    return out + ([] if doubtful else blame_tags(rec, by)) + two_view_tags(rec, by)
 
 
 def blame_tags(rec: dict[str, Any], by: str) -> list[tuple[str, str]]:

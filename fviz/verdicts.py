@@ -90,9 +90,11 @@ def fails_label(metric: str, threshold: float | None = None) -> str:
 # What went wrong on a pair, in one line with the number behind it: the head of every pair view (inspect, eval
 # --full, triage's banner) and inspect's output. Its words are triage's tags (fviz.triage), judged by the same rules.
 
-PAIR_FAILED, NO_EVAL, DEGENERATE, GT_SUSPECT = "pair failed", "no evaluation matches", "degenerate", "ground truth suspect"
+PAIR_FAILED, TOO_FEW, INPUTS, NO_EVAL = "pair failed", "too few to judge", "inputs suspect", "no evaluation matches"
+DEGENERATE, GT_SUSPECT = "degenerate", "ground truth suspect"
 MATCHER, ESTIMATOR, FAILS, NO_GT, NO_FAILURE = "matcher", "estimator", "fails", "no ground truth", "no failure"
-VERDICTS = (PAIR_FAILED, NO_EVAL, DEGENERATE, GT_SUSPECT, MATCHER, ESTIMATOR, FAILS, NO_GT, NO_FAILURE)  # first applies
+VERDICTS = (PAIR_FAILED, TOO_FEW, INPUTS, NO_EVAL, DEGENERATE, GT_SUSPECT, MATCHER, ESTIMATOR, FAILS, NO_GT,
+            NO_FAILURE)  # the first that applies
 DEGENERATE_FRACTION = 0.9  # degenerate: this share of the matches move less than diagnose.STATIC_PX
 MATCHER_MIN_PRECISION = 0.5  # the matcher is to blame for a failing estimate when fewer than this share of the
 MATCHER_MIN_CORRECT = 20  # matches lie within 2 px of F_gt, or fewer than this many within 1 px (match_precision)
@@ -100,10 +102,12 @@ MATCHER_MIN_CORRECT = 20  # matches lie within 2 px of F_gt, or fewer than this 
 
 @dataclass(frozen=True)
 class Verdict:
-    """A pair's verdict: ``kind`` (one of VERDICTS) and ``text``, the evidence with its numbers."""
+    """A pair's verdict: ``kind`` (one of VERDICTS), ``text``, the evidence with its numbers, and ``detail``, which
+    of a kind's causes ("swapped", "scale", "K" for INPUTS; "static", "planar", "rotation" for DEGENERATE)."""
 
     kind: str
     text: str
+    detail: str = ""
 
     @property
     def line(self) -> str:
@@ -118,15 +122,23 @@ def _num(v) -> float:
 
 
 def failure(row: dict) -> str:
-    """Why an estimate (a result row: ``name``, ``error``, ``metrics``) fails its pair, "" when it does not: it
-    failed (no F), or its pose error is above POSE_FAIL_DEG, or its median SED above 2 px or undefined."""
+    """Why an estimate (a result row: ``name``, ``error``, ``metrics``) fails its pair, "" when it passes every figure
+    the pair gives: it failed (no F); its pose error is above POSE_FAIL_DEG, or no pose could be recovered from it
+    although the pair has cameras and a ground-truth pose (no decomposition of its E puts the evaluation matches in
+    front of both cameras); its epipole is more than POSE_FAIL_DEG off; its median SED is above 2 px or undefined.
+    A pose left undefined for want of evaluation matches (``pose_undefined``) is not held against the estimate."""
     if row.get("error"):
         return f"gave no F: {str(row['error']).splitlines()[0][:80]}"
     m = row.get("metrics") or {}
-    pose, sed = _num(m.get("pose_err_deg")), _num(m.get("sed_median"))
+    pose, sed, epipole = _num(m.get("pose_err_deg")), _num(m.get("sed_median")), _num(m.get("epipole_err_deg"))
     why = []
-    if math.isfinite(pose) and FAIL_RULES["pose_err_deg"].fails(pose):  # unknown (no pose): not judged
+    if math.isfinite(pose) and FAIL_RULES["pose_err_deg"].fails(pose):
         why.append(f"pose error {pose:.3g} deg")
+    elif "pose_err_deg" in m and not math.isfinite(pose) and not m.get("pose_undefined"):
+        why.append("no pose: no decomposition puts the points in front of both cameras"
+                   + (f", epipole {epipole:.3g} deg off" if math.isfinite(epipole) else ""))
+    elif math.isfinite(epipole) and FAIL_RULES["epipole_err_deg"].fails(epipole):
+        why.append(f"epipole {epipole:.3g} deg off")
     if FAIL_RULES["sed_median"].fails(sed):
         why.append(f"median SED {sed:.3g} px" if math.isfinite(sed) else "no median SED")
     return ", ".join(why)
@@ -159,12 +171,19 @@ def fail_phrase(failing: list[tuple[str, str]]) -> str:
 
 def pair_verdict(rec: dict, by: str | None = None) -> Verdict:
     """The verdict of one pair (a results.jsonl record: ``error``, ``result``, ``diagnostics``), the first of
-    VERDICTS that applies: the pair failed; none of its matches is an evaluation match; its matches do not move
-    (``degenerate``); its ground truth is suspect (:func:`fviz.diagnose.gt_suspect`); an estimate fails
-    (:func:`failure`) and the matches' precision says whose fault (``matcher`` / ``estimator``; ``fails`` where
-    the precision is unknown); no ground truth (how far the estimates agree); no failure. ``by``: judge that
-    estimator alone (triage's ranked one); default every estimator but the baselines."""
-    from fviz.diagnose import STATIC_PX, gt_suspect
+    VERDICTS that applies, the cheaper explanations before the ground truth:
+
+    the pair failed; it has fewer than MIN_EVIDENCE matches (``too few to judge``: F has 7 degrees of freedom, and
+    evidence needs spare matches; the failing estimates are still named); the user's inputs explain the matches
+    better than the ground truth does (:func:`fviz.diagnose.input_mistake`: swapped or rescaled matches, a K for
+    another image); none of the matches is an evaluation match; the matches do not move, or, where an estimate
+    fails, one homography explains nearly all of them (``degenerate``: static, planar or a pure rotation); the
+    ground truth is suspect (:func:`fviz.diagnose.gt_suspect`); an estimate fails (:func:`failure`) and the matches'
+    precision says whose fault (``matcher`` / ``estimator``; ``fails`` where the precision is unknown); no ground
+    truth (how far the estimates agree); no failure. ``by``: judge that estimator alone (triage's ranked one);
+    default every estimator but the baselines. A network's estimate (``deep``) is set beside the straight-ahead
+    constant on the same points."""
+    from fviz.diagnose import MIN_EVIDENCE, STATIC_PX, gt_suspect, input_mistake
     from fviz.estimators.registry import is_baseline
 
     res = rec.get("result")
@@ -173,34 +192,80 @@ def pair_verdict(rec: dict, by: str | None = None) -> Verdict:
     diag, rows, n = rec.get("diagnostics") or {}, res["estimators"], res["n_matches"]
     ests = [e for e in rows if e["name"] != GT_NAME]
     judged = [e for e in ests if e["name"] == by] if by else [e for e in ests if not is_baseline(e["name"])] or ests
-    if res.get("F_gt") is None:  # only an error fails an estimate (its residuals are over every match)
-        failed = [f"; {e['name']} {failure(e)}" for e in judged if e.get("error")]
+    has_gt = res.get("F_gt") is not None
+    failing = [(e["name"], why) for e in judged if (why := failure(e) if has_gt or e.get("error") else "")]
+    if n < MIN_EVIDENCE:
+        measured = f"; {fail_phrase(failing)}" if failing else ""
+        return Verdict(TOO_FEW, f"{n} matches, fewer than {MIN_EVIDENCE} (F's 7 degrees of freedom and 8 spare): no "
+                       f"fit or residual of so few is evidence{measured}; try another matcher or more keypoints "
+                       "(--max-keypoints)")
+    if not has_gt:  # only an error fails an estimate (its residuals are over every match)
         v = _agreement_verdict(res, [e["name"] for e in judged if not e.get("error")])
-        return Verdict(v.kind, v.text + "".join(failed))
+        return Verdict(v.kind, v.text + "".join(f"; {name} {why}" for name, why in failing))
+    if mistake := input_mistake(diag):
+        return Verdict(INPUTS, mistake["text"] + "; the metrics against F_gt mean nothing until the inputs agree",
+                       mistake["detail"])
     suspect = gt_suspect(diag, rows)
     if res["n_eval"] == 0:
         why = f"ground truth suspect: {suspect['short']}" if suspect else "the matcher or the ground truth is wrong"
         return Verdict(NO_EVAL, f"0 of {n} matches within {res['eval_threshold_px']:g} px of F_gt's lines: no metric; {why}")
-    static = _num(diag.get("static_fraction"))
-    if static >= DEGENERATE_FRACTION:
-        return Verdict(DEGENERATE, f"{static:.0%} of the {n} matches move < {STATIC_PX:g} px: any F through the points "
-                       "fits them, residuals and inliers mean nothing")
+    if degenerate := _degenerate(diag, n, STATIC_PX, bool(failing)):
+        return degenerate
     if suspect:
         return Verdict(GT_SUSPECT, f"{suspect['short']}: trust {suspect['reference']}'s F, not the metrics")
-    judgements = [(e["name"], failure(e)) for e in judged]
-    failing, fine = [(name, why) for name, why in judgements if why], [name for name, why in judgements if not why]
+    fine = [e["name"] for e in judged if e["name"] not in dict(failing)]
+    beside = _beside_constant(diag, judged)
     if failing:
         who = fail_phrase(failing)
         also = f"; {', '.join(fine)} fine" if fine else ""
         if not res.get("match_precision"):
-            return Verdict(FAILS, f"{who}; whose fault is unknown (no pose: no match precision){also}")
+            return Verdict(FAILS, f"{who}; whose fault is unknown (no pose: no match precision){also}{beside}")
         kind, numbers = blame(res["match_precision"], n)
-        return Verdict(kind, blamed(who, kind, numbers) + also)
+        return Verdict(kind, blamed(who, kind, numbers) + also + beside)
     best = min(judged, key=lambda e: _num(e["metrics"].get("sed_median")), default=None)
     sed = _num(best["metrics"].get("sed_median")) if best else float("nan")
     return Verdict(NO_FAILURE, f"{', '.join(e['name'] for e in judged) or 'no estimator'} within median SED "
-                   f"{FAIL_RULES['sed_median'].threshold:g} px and pose error {POSE_FAIL_DEG:g} deg"
-                   + (f" (best: {best['name']}, median SED {sed:.3g} px)" if best else ""))
+                   f"{FAIL_RULES['sed_median'].threshold:g} px, pose and epipole error {POSE_FAIL_DEG:g} deg"
+                   + (f" (best: {best['name']}, median SED {sed:.3g} px)" if best else "") + beside)
+
+
+def _degenerate(diag: dict, n: int, static_px: float, failing: bool) -> Verdict | None:
+    """A pair whose matches cannot determine F: they do not move (static), or, where an estimate fails, one
+    homography explains DEGENERATE_H_FRACTION of them (a plane, or a pure rotation when the ground truth's
+    rotation explains them too)."""
+    from fviz.diagnose import DEGENERATE_H_FRACTION, ROTATION_FRACTION
+
+    static = _num(diag.get("static_fraction"))
+    if static >= DEGENERATE_FRACTION:
+        return Verdict(DEGENERATE, f"{static:.0%} of the {n} matches move < {static_px:g} px: any F through the points "
+                       "fits them, residuals and inliers mean nothing", "static")
+    h = _num(diag.get("homography_fraction"))
+    if not (failing and h >= DEGENERATE_H_FRACTION):
+        return None
+    rotation = _num(diag.get("rotation_fraction")) >= ROTATION_FRACTION
+    what = "a pure rotation" if rotation else "a plane (or a rotation)"
+    return Verdict(DEGENERATE, f"one homography explains {h:.0%} of the {n} matches, {what}: they do not determine F, "
+                   "so an estimate may fail without the matcher, the estimator or the ground truth being wrong",
+                   "rotation" if rotation else "planar")
+
+
+def _beside_constant(diag: dict, judged: list[dict]) -> str:
+    """"; deep no better than the straight-ahead constant (median SED 3.1 vs 2.9 px)" for each network estimate
+    that does not beat the constant on the evaluation matches (``ahead_sed_median``); "" otherwise."""
+    from fviz.diagnose import fits_matches
+
+    ahead = _num(diag.get("ahead_sed_median"))
+    out = []
+    for e in judged:
+        if fits_matches(e["name"]) or not (e["name"] == "deep" or e["name"].startswith("deep")) or e.get("error"):
+            continue
+        sed = _num((e.get("metrics") or {}).get("sed_median"))
+        if math.isfinite(ahead) and not sed < ahead:
+            out.append(f"; {e['name']} no better than the straight-ahead constant (median SED {sed:.3g} vs "
+                       f"{ahead:.3g} px)")
+        elif math.isfinite(ahead):
+            out.append(f"; {e['name']} beats the straight-ahead constant (median SED {sed:.3g} vs {ahead:.3g} px)")
+    return "".join(out)
 
 
 def _agreement_verdict(res: dict, names: list[str]) -> Verdict:

@@ -25,28 +25,51 @@ def gt_bias(records):
     return _gt_bias(e for e in map(pair_epipole_offset, records) if e is not None)
 
 
-def _records(gt_yaws, fit_yaws) -> list[dict]:
+def _records(gt_yaws, fits: dict[str, np.ndarray], n_inliers: int = 400) -> list[dict]:
+    """Records of pairs with ground-truth yaws ``gt_yaws`` and, per estimator, its fitted yaws (tight fits)."""
     F = lambda yaw: fundamental_from_motion(K, K, np.eye(3), _t(yaw)).tolist()  # noqa: E731
-    return [{"error": None, "diagnostics": {"gt_epipole_distance": 0.1, "estimators": {"magsac": {"sed_median_inliers": 0.2}}},
+    ev = {name: {"sed_median_inliers": 0.1, "sed_median_heldout": 0.2, "n_inliers": n_inliers} for name in fits}
+    return [{"error": None, "diagnostics": {"gt_epipole_distance": 0.1, "estimators": ev},
              "result": {"pair": {"K_a": K.tolist()}, "F_gt": F(g),
-                        "estimators": [{"name": "gt", "F": F(g)}, {"name": "magsac", "F": F(f)}]}}
-            for g, f in zip(gt_yaws, fit_yaws)]
+                        "estimators": [{"name": "gt", "F": F(g)}, *({"name": n, "F": F(y[i])} for n, y in fits.items())]}}
+            for i, g in enumerate(gt_yaws)]
 
 
 def test_a_consistent_offset_is_a_bias_and_noise_is_not():
     rng = np.random.default_rng(0)
     gt = rng.normal(0, 1, 20)
-    biased = gt_bias(_records(gt, gt - 0.8 + rng.normal(0, 0.3, 20)))  # the images' direction 0.8 deg left of the truth's
+    left = {"magsac": gt - 0.8 + rng.normal(0, 0.3, 20), "ransac": gt - 0.7 + rng.normal(0, 0.6, 20)}  # 0.8 deg left
+    biased = gt_bias(_records(gt, left))
     assert biased["axis"] == "x" and biased["median_deg"] == pytest.approx(-0.8, abs=0.2) and biased["estimator"] == "magsac"
+    assert biased["confirmed_by"] == ["ransac"] and "ransac on the same side" in biased["text"]
     assert biased["same_side"] >= 18 and biased["p"] < 1e-3 and "left of the ground truth's" in biased["text"]
     assert biased["median_px"] == pytest.approx(np.tan(np.radians(abs(biased["median_deg"]))) * 721.5)
-    assert gt_bias(_records(gt, gt + rng.normal(0, 0.8, 20))) is None  # noise, no side
-    assert gt_bias(_records(gt[: GT_BIAS_MIN_PAIRS - 1], gt[: GT_BIAS_MIN_PAIRS - 1] - 2.0)) is None  # too few pairs
+    noise = {n: gt + rng.normal(0, 0.8, 20) for n in ("magsac", "ransac")}
+    assert gt_bias(_records(gt, noise)) is None  # noise, no side
+    few = {n: gt[: GT_BIAS_MIN_PAIRS - 1] - 2.0 for n in ("magsac", "ransac")}
+    assert gt_bias(_records(gt[: GT_BIAS_MIN_PAIRS - 1], few)) is None  # too few pairs
+
+
+def test_a_bias_needs_two_robust_estimators_that_agree():
+    """One estimator alone, however consistent, may be measuring its own bias (8-point's epipole sat 39 deg to one
+    side of the ground truth's on 7 of 9 held-out pairs while MAGSAC++'s pose errors were 0.5-6.6 deg): no claim from
+    a least-squares fit, none from a lone robust one, none where a second robust one sits on the other side, and
+    none from fits with too few inliers to be evidence."""
+    rng = np.random.default_rng(1)
+    gt = rng.normal(0, 1, 12)
+    off = gt - 39.0 + rng.normal(0, 2, 12)
+    assert gt_bias(_records(gt, {"8point": off, "7point": off + 0.5})) is None  # least squares: not robust
+    assert gt_bias(_records(gt, {"magsac": gt - 0.8 + rng.normal(0, 0.2, 12)})) is None  # alone
+    split = {"magsac": gt - 0.8 + rng.normal(0, 0.2, 12), "ransac": gt + 0.8 + rng.normal(0, 0.2, 12)}
+    assert gt_bias(_records(gt, split)) is None  # they disagree
+    agree = {"magsac": gt - 0.8 + rng.normal(0, 0.2, 12), "ransac": gt - 0.8 + rng.normal(0, 0.2, 12)}
+    assert gt_bias(_records(gt, agree))["axis"] == "x"
+    assert gt_bias(_records(gt, agree, n_inliers=12)) is None  # 12 inliers: an 8-point fit has 5 spare
 
 
 def _eval(tmp_path, name, *source):
     out = tmp_path / name
-    proc = run_fviz("eval", *source, "--pair", "temporal", "-e", "magsac", "-e", "ransac",
+    proc = run_fviz("eval", *source, "--pair", "temporal", "-e", "magsac", "-e", "usac-accurate",
                     "--max-keypoints", "1500", "--workers", "1", "--no-progress", "--out-dir", out, timeout=900)
     assert proc.returncode == 0, proc.stderr
     return out, proc
@@ -55,8 +78,10 @@ def _eval(tmp_path, name, *source):
 def test_raw_oxts_pairs_report_the_bias_and_an_exact_ground_truth_does_not(kitti_root, tmp_path):
     raw, proc = _eval(tmp_path, "raw", "--kitti-root", kitti_root, "--drive", "2011_09_26_drive_0002", "--frames", "0:10")
     bias = json.loads((raw / "summary.json").read_text())["gt_bias"]
-    # MAGSAC++'s epipole: left of the oxts one on 8 of 9 pairs, by ~8 px; RANSAC's is too noisy to tell a side
-    assert bias["estimator"] == "magsac" and bias["axis"] == "x" and bias["median_deg"] < -0.3 and bias["p"] < 0.05
+    # USAC-accurate's epipole below the oxts one on 8 of 9 pairs by ~4 px, MAGSAC++'s on the same side (in x they
+    # disagree: MAGSAC++ left, USAC-accurate on both sides; with RANSAC, whose epipole sits right, no claim at all)
+    assert bias["estimator"] == "usac-accurate" and bias["axis"] == "y" and bias["median_deg"] > 0.2 and bias["p"] < 0.05
+    assert bias["confirmed_by"] == ["magsac"]
     assert "ground truth biased" in (raw / "summary.md").read_text().lower() and "ground truth biased" in proc.stderr
     exact, _ = _eval(tmp_path, "synthetic", "--synthetic", "--seeds", "0:10")  # exact ground truth: no side
     assert json.loads((exact / "summary.json").read_text())["gt_bias"] is None

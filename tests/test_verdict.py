@@ -36,8 +36,8 @@ def test_no_evaluation_match_is_the_verdict_and_the_probe_walks_the_matchers_err
     v = verdict_of(pair, result)
     assert v.kind == NO_EVAL and v.text.startswith(f"0 of {result.n_matches} matches within 2 px of F_gt's lines")
     # the estimates' consensus sits ~200 px off F_gt's lines, ~0.3 px off their own
-    assert re.search(r"; ground truth suspect: (8point|ransac)'s inliers \(\d+%\) sit (19\d|20\d) px off F_gt's lines, "
-                     r"0\.\d+ px off its own$", v.text), v.text
+    assert re.search(r"; ground truth suspect: (8point|ransac)'s \d+ inliers \(\d+%\) sit (19\d|20\d) px off F_gt's lines, "
+                     r"0\.\d+ px off F's refitted without them \(out of sample\)$", v.text), v.text
     assert text(rrd, L.VERDICT) == [v.markdown()]
     probe = text(rrd, L.PROBE_TEXT)  # no evaluation match to walk: every match, by the ground truth's residual
     assert len(probe) == 5 and all("By the ground truth's residual over all matches (no evaluation match" in t for t in probe), probe
