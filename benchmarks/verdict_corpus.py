@@ -589,7 +589,7 @@ def markdown(summary: dict, rows: list[dict], meta: dict) -> str:
     P = summary["predicted"]
     out = [f"# Verdict corpus ({meta['corpus']})", "",
            f"{summary['cases']} cases of known cause, judged by `fviz.verdicts.verdict_of` on fviz {meta['fviz']} "
-           f"(commit {meta['commit']}); {meta['seconds']:.0f} s on {meta['cpus']}. Built by "
+           f"(commit {meta['commit']}); {meta['seconds']:.0f} s ({meta['cpu_seconds']:.0f} s of CPU), {meta['cpus']}. Built by "
            "`benchmarks/verdict_corpus.py` (its docstring says how each family is made).", "",
            "## Targets", "", "| figure | now | target |", "|---|---|---|",
            f"| false fine (cases; estimates) | {t['false_fine']}; {t['false_fine_estimates']} | 0 |",
@@ -646,7 +646,8 @@ def run_corpus(quick: bool, kitti_root: Path = KITTI_ROOT, strecha_root: Path = 
         if progress:
             print(f"[{i + 1}/{len(cases)}] {c.name}: {rows[-1]['label']} -> {rows[-1]['predicted']}", file=sys.stderr)
     meta = {"corpus": "quick" if quick else "full", "fviz": getattr(fviz, "__version__", "?"), "commit": _commit(),
-            "seconds": time.perf_counter() - t0, "cpu_seconds": time.process_time() - c0, "cpus": f"{platform.machine()}",
+            "seconds": time.perf_counter() - t0, "cpu_seconds": time.process_time() - c0,
+            "cpus": f"one process, {os.cpu_count()} {platform.machine()} cores",
             "build_s": built["bases_s"] + built["cases_s"]}
     return summarize(rows), rows, meta
 
