@@ -21,6 +21,7 @@ from fviz.evaluate import EVAL_THRESHOLD_PX, GT_NAME
 HOMOGRAPHY_PX = 2.0
 ROTATION_PX = 2.0
 STATIC_PX = 0.5  # a match moving less than this is static (identical images: every match)
+STATIC_FRACTION = 0.9  # this share of the matches static: degenerate (fviz.verdicts, fviz.triage)
 MIN_FIT = 8  # fewer inliers than this: no homography is fitted
 # Evidence with redundancy: a fit through as many matches as it has degrees of freedom fits them exactly, so its
 # residuals say nothing. A fit is evidence only with MIN_SPARE matches beyond F's 7 degrees of freedom, and then only
@@ -33,8 +34,9 @@ HELDOUT_FOLDS = 5
 # (which only a file can swap or rescale): the median normalized cross-correlation of PATCH_PX patches around
 # PATCH_SAMPLES matches, as given against swapped or rescaled, NCC_GAIN higher and at least NCC_MIN. Geometric
 # evidence, for any matches: F_gt's median SED over the matches INPUT_RATIO times smaller with a and b swapped (images
-# in the wrong order) or at another scale, with at least INPUT_MIN_SHARE of the matches within the evaluation
-# threshold (a few px of pose error moves KITTI's lines about as much as a swap of its two frames: 2-3x, never 4x)
+# in the wrong order) or at another scale, at most GT_OWN_TIGHT of the evaluation threshold (as tightly as a right
+# ground truth fits), with at least INPUT_MIN_SHARE of the matches within the threshold (a few px of pose error moves
+# KITTI's lines about as much as a swap of its two frames: 2-3x, never 4x). Static matches (any F fits) say nothing
 PATCH_PX, PATCH_SAMPLES, NCC_GAIN, NCC_MIN = 11, 300, 0.2, 0.5
 INPUT_RATIO = 4.0
 INPUT_MIN_SHARE = 0.25
@@ -55,6 +57,12 @@ GT_SUSPECT_ROTATION_DEG = 1.0
 # above GT_SUSPECT_RATIO times the estimate's own, and above it by a margin that grows with the ground truth's stated
 # accuracy (Pair.gt_accuracy_px): GT_SUSPECT_MARGIN_PX or half the accuracy on the residuals alone, and
 # GT_SUSPECT_DIRECTION_MARGIN_PX or a tenth of it where the direction test (forward motion) adds its evidence
+# the ground truth's own consensus: at least GT_OWN_SHARE of the matches (and MIN_EVIDENCE) within the evaluation
+# threshold of its lines, their median SED below GT_OWN_TIGHT of it (a wrong F_gt's band holds matches spread over
+# the band, median ~half the threshold: 0.69-1.4 px on the labelled corpus; a right one 0.1-0.6 px): then the matches
+# hold two consistent sets (repeated texture), and the ground truth is not the one to doubt
+GT_OWN_SHARE = 0.25
+GT_OWN_TIGHT = 0.35
 GT_SUSPECT_RATIO = 1.5
 GT_SUSPECT_MARGIN_PX = 1.0
 GT_SUSPECT_ACCURACY_SHARE = 0.5
@@ -178,7 +186,7 @@ def input_mistake(diag: dict[str, Any] | None) -> dict[str, str] | None:
       of the matches lie within the threshold so: the matches' columns, or the images, in the wrong order;
     - ``scale``: the same at another scale of the coordinates (matches made on resized images)."""
     ev = (diag or {}).get("inputs") or {}
-    if not ev:
+    if not ev or _num((diag or {}).get("static_fraction")) >= STATIC_FRACTION:
         return None
     n = int(_num((diag or {}).get("n_matches")))
     pp = _num(ev.get("pp_offset"))
@@ -191,8 +199,9 @@ def input_mistake(diag: dict[str, Any] | None) -> dict[str, str] | None:
         v = _num(ev.get(key))
         return v >= NCC_MIN and v >= np.nan_to_num(given, nan=-1.0) + NCC_GAIN
 
-    def fits(d: str, k: str) -> bool:
-        return INPUT_RATIO * _num(ev.get(d)) <= ev["d_gt"] and ev[k] >= max(MIN_EVIDENCE, INPUT_MIN_SHARE * n)
+    def fits(d: str, k: str) -> bool:  # as tightly as a right ground truth fits its matches (GT_OWN_TIGHT)
+        return (INPUT_RATIO * _num(ev.get(d)) <= ev["d_gt"] and _num(ev.get(d)) <= GT_OWN_TIGHT * EVAL_THRESHOLD_PX
+                and ev[k] >= max(MIN_EVIDENCE, INPUT_MIN_SHARE * n))
 
     def numbers(d: str, k: str, ncc: str) -> str:
         look = f"; their patches correlate {_num(ev.get(ncc)):.2f} so against {given:.2f} as given" if looks(ncc) else ""
@@ -397,13 +406,25 @@ def _margins(diag: dict[str, Any]) -> tuple[float, float]:
             max(GT_SUSPECT_DIRECTION_MARGIN_PX, GT_SUSPECT_DIRECTION_ACCURACY_SHARE * acc))
 
 
+def gt_own_consensus(diag: dict[str, Any], estimators: list[dict[str, Any]]) -> str:
+    """"" or why the ground truth has a tight consensus of its own among the matches (GT_OWN_SHARE, GT_OWN_TIGHT):
+    "312 of the 690 matches lie a median 0.3 px from F_gt's lines"."""
+    n, near = _num(diag.get("n_matches")), _num(((diag.get("inputs") or {}).get("n_gt")))
+    gt = next((e for e in estimators if e["name"] == GT_NAME), None)
+    band = _num((gt or {}).get("metrics", {}).get("sed_median"))  # over the evaluation matches: those near F_gt
+    if near >= max(MIN_EVIDENCE, GT_OWN_SHARE * n) and band <= GT_OWN_TIGHT * EVAL_THRESHOLD_PX:
+        return f"{near:.0f} of the {n:.0f} matches lie a median {band:.2g} px from F_gt's lines"
+    return ""
+
+
 def gt_suspect(diag: dict[str, Any] | None, estimators: list[dict[str, Any]]) -> dict[str, str] | None:
     """Whether the pair's ground truth looks wrong: {"why": ..., "short": the same in a few words (a pair's verdict,
     fviz.verdicts), "reference": the estimator to trust instead} or None. ``diag``: :func:`diagnose`'s evidence;
     ``estimators``: the pair's rows ({name, error, metrics}, as in results.jsonl and ``inspect --json``).
 
     Cheaper explanations first: never when the user's inputs explain the misfit (:func:`input_mistake`: swapped or
-    rescaled matches, a K for another image). Evidence only from fits with redundancy: an estimator that fits the
+    rescaled matches, a K for another image), nor when the ground truth has a tight consensus of its own among the
+    matches (:func:`gt_own_consensus`: two consistent sets, a matcher fooled by repeated texture). Evidence only from fits with redundancy: an estimator that fits the
     matches and finds a consensus (inlier ratio >= GT_SUSPECT_INLIER_RATIO) of at least MIN_EVIDENCE inliers (F's 7
     degrees of freedom and MIN_SPARE spare), measured out of sample (``sed_median_heldout``: :func:`heldout_sed`),
     never by its own fit's residuals (zero through 8 points whatever the points). The ground truth is suspect only
@@ -421,7 +442,7 @@ def gt_suspect(diag: dict[str, Any] | None, estimators: list[dict[str, Any]]) ->
       and fits its inliers better than F_gt does by the (smaller) direction margin. An epipole far from the image or
       at infinity (sideways motion, rectified stereo) is poorly determined: an estimate's being 6-20 deg off says
       nothing there, and neither does it where the ground truth fits the matches as well as the estimates."""
-    if not diag or input_mistake(diag):
+    if not diag or input_mistake(diag) or gt_own_consensus(diag, estimators):
         return None
     evidence = diag.get("estimators", {})
     rows = [e for e in estimators if not e.get("error") and is_robust(e["name"]) and e["name"] in evidence]

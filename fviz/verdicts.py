@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from fviz.diagnose import STATIC_FRACTION
 from fviz.evaluate import EVAL_THRESHOLD_PX, GT_NAME
 from fviz.geometry import NSGD_RECALL_THRESHOLD
 
@@ -95,7 +96,7 @@ DEGENERATE, GT_SUSPECT = "degenerate", "ground truth suspect"
 MATCHER, ESTIMATOR, FAILS, NO_GT, NO_FAILURE = "matcher", "estimator", "fails", "no ground truth", "no failure"
 VERDICTS = (PAIR_FAILED, TOO_FEW, INPUTS, NO_EVAL, DEGENERATE, GT_SUSPECT, MATCHER, ESTIMATOR, FAILS, NO_GT,
             NO_FAILURE)  # the first that applies
-DEGENERATE_FRACTION = 0.9  # degenerate: this share of the matches move less than diagnose.STATIC_PX
+DEGENERATE_FRACTION = STATIC_FRACTION  # degenerate: this share of the matches static (diagnose.STATIC_PX)
 MATCHER_MIN_PRECISION = 0.5  # the matcher is to blame for a failing estimate when fewer than this share of the
 MATCHER_MIN_CORRECT = 20  # matches lie within 2 px of F_gt, or fewer than this many within 1 px (match_precision)
 
@@ -173,11 +174,13 @@ def pair_verdict(rec: dict, by: str | None = None) -> Verdict:
     """The verdict of one pair (a results.jsonl record: ``error``, ``result``, ``diagnostics``), the first of
     VERDICTS that applies, the cheaper explanations before the ground truth:
 
-    the pair failed; it has fewer than MIN_EVIDENCE matches (``too few to judge``: F has 7 degrees of freedom, and
-    evidence needs spare matches; the failing estimates are still named); the user's inputs explain the matches
+    the pair failed; its matches do not move (``degenerate``, static: any F fits them); it has fewer than
+    MIN_EVIDENCE matches, or fewer evaluation matches and no robust consensus of
+    that many (``too few to judge``: F has 7 degrees of freedom, and evidence needs spare matches; the failing
+    estimates are still named); the user's inputs explain the matches
     better than the ground truth does (:func:`fviz.diagnose.input_mistake`: swapped or rescaled matches, a K for
-    another image); none of the matches is an evaluation match; the matches do not move, or, where an estimate
-    fails, one homography explains nearly all of them (``degenerate``: static, planar or a pure rotation); the
+    another image); none of the matches is an evaluation match; where an estimate fails, one homography explains
+    nearly all of the matches (``degenerate``: planar or a pure rotation); the
     ground truth is suspect (:func:`fviz.diagnose.gt_suspect`); an estimate fails (:func:`failure`) and the matches'
     precision says whose fault (``matcher`` / ``estimator``; ``fails`` where the precision is unknown); no ground
     truth (how far the estimates agree); no failure. ``by``: judge that estimator alone (triage's ranked one);
@@ -194,11 +197,13 @@ def pair_verdict(rec: dict, by: str | None = None) -> Verdict:
     judged = [e for e in ests if e["name"] == by] if by else [e for e in ests if not is_baseline(e["name"])] or ests
     has_gt = res.get("F_gt") is not None
     failing = [(e["name"], why) for e in judged if (why := failure(e) if has_gt or e.get("error") else "")]
-    if n < MIN_EVIDENCE:
+    if few := _too_few(res, rows, MIN_EVIDENCE):
         measured = f"; {fail_phrase(failing)}" if failing else ""
-        return Verdict(TOO_FEW, f"{n} matches, fewer than {MIN_EVIDENCE} (F's 7 degrees of freedom and 8 spare): no "
-                       f"fit or residual of so few is evidence{measured}; try another matcher or more keypoints "
+        return Verdict(TOO_FEW, f"{few}, fewer than {MIN_EVIDENCE} (F's 7 degrees of freedom and 8 spare): no fit or "
+                       f"residual of so few is evidence{measured}; try another matcher or more keypoints "
                        "(--max-keypoints)")
+    if (static := _degenerate(diag, n, STATIC_PX, False)) is not None:
+        return static
     if not has_gt:  # only an error fails an estimate (its residuals are over every match)
         v = _agreement_verdict(res, [e["name"] for e in judged if not e.get("error")])
         return Verdict(v.kind, v.text + "".join(f"; {name} {why}" for name, why in failing))
@@ -227,6 +232,25 @@ def pair_verdict(rec: dict, by: str | None = None) -> Verdict:
     return Verdict(NO_FAILURE, f"{', '.join(e['name'] for e in judged) or 'no estimator'} within median SED "
                    f"{FAIL_RULES['sed_median'].threshold:g} px, pose and epipole error {POSE_FAIL_DEG:g} deg"
                    + (f" (best: {best['name']}, median SED {sed:.3g} px)" if best else "") + beside)
+
+
+def _too_few(res: dict, rows: list[dict], minimum: int) -> str:
+    """"" or why a pair has too few matches to judge: fewer than ``minimum`` matches; or, with ground truth, fewer than
+    ``minimum`` evaluation matches and no robust estimator with a consensus of ``minimum`` inliers (neither the ground
+    truth nor any fit has spare matches to be evidence of anything)."""
+    from fviz.diagnose import is_robust
+
+    n = res["n_matches"]
+    if n < minimum:
+        return f"{n} matches"
+    if res.get("F_gt") is None or res.get("n_eval", 0) >= minimum:
+        return ""
+    best = max((_num(e["metrics"].get("n_inliers")) for e in rows if is_robust(e["name"]) and not e.get("error")),
+               default=float("nan"))
+    if not best >= minimum:
+        inliers = f"{best:.0f} inliers" if math.isfinite(best) else "no robust estimator's inliers"
+        return f"{res['n_eval']} of the {n} matches near F_gt and {inliers} at most"
+    return ""
 
 
 def _degenerate(diag: dict, n: int, static_px: float, failing: bool) -> Verdict | None:
