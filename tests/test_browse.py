@@ -96,7 +96,8 @@ def test_open_web_binds_loopback_by_default(inspected, bind):
 
 def test_open_rejects_bad_ports(inspected):
     path, _ = inspected
-    r = run_fviz("open", path, "--web", "--port", "7000", "--web-port", "7000")
+    # two servers with --web-static (Rerun's); --web serves on --web-port alone
+    r = run_fviz("open", path, "--web-static", "--port", "7000", "--web-port", "7000")
     assert r.returncode == 2 and "--port and --web-port" in r.stderr
     r = run_fviz("open", path, "--web", "--port", "70000")
     assert r.returncode == 2 and "--port 70000" in r.stderr
