@@ -190,6 +190,8 @@ class PageServer:
         """Serve; return once it listens (the bind's error, such as a taken port, is raised here)."""
         self._thread.start()
         self._ready.wait()
+        if isinstance(self._error, OSError):  # taken since prepare_serving checked it, or no such address
+            raise FvizError(f"--web-port {self.port}: cannot listen on {self.host} ({self._error.strerror or self._error})")
         if self._error is not None:
             raise self._error
         return self
@@ -241,11 +243,10 @@ class PageServer:
     async def _stop(self) -> None:
         from aiohttp import WSCloseCode
 
-        for ws in list(self.sockets):
-            try:
-                await asyncio.wait_for(ws.close(code=WSCloseCode.GOING_AWAY, message=b"fviz stopped"), 2)
-            except (asyncio.TimeoutError, ConnectionError):
-                pass
+        closing = [asyncio.ensure_future(ws.close(code=WSCloseCode.GOING_AWAY, message=b"fviz stopped"))
+                   for ws in self.sockets]
+        if closing:  # all at once, 2 s at most (a page that does not answer is cut by the cleanup)
+            await asyncio.wait(closing, timeout=2)
         if self._runner is not None:
             await self._runner.cleanup()
 
