@@ -175,14 +175,16 @@ def _last_line(lines: list[str]) -> str:
     return text[-1] if text else "no message"
 
 
-def prepare_serving(path: Path, host: str, port: int, web_port: int) -> None:
-    """What every web server of fviz checks first (the recording, two free ports), and SIGTERM / SIGHUP turned
-    into Ctrl-C, so that the server stops the same way on each."""
+def prepare_serving(path: Path, host: str, port: int | None, web_port: int) -> None:
+    """What every web server of fviz checks first (the recording, its free ports: ``port`` is Rerun's recording
+    server of ``--web-static``, None for fviz's page, which serves on ``web_port`` alone), and SIGTERM / SIGHUP
+    turned into Ctrl-C, so that the server stops the same way on each."""
     if not Path(path).is_file():
         raise FvizError(f"no such recording: {path}")
-    if port == web_port:
-        raise FvizError(f"--port and --web-port are both {port}: they need two ports")
-    check_port_free(host, port, "--port")
+    if port is not None:
+        if port == web_port:
+            raise FvizError(f"--port and --web-port are both {port}: they need two ports")
+        check_port_free(host, port, "--port")
     check_port_free(host, web_port, "--web-port")
 
     def _stop(signum, frame):

@@ -139,16 +139,14 @@ def listening(procs: list) -> set[tuple[str, int]]:
 
 
 class WebServer:
-    """``fviz open FILE --web --port P --web-port W [extra]`` on free ports, until ``close()``.
+    """``fviz open FILE --web --web-port W [extra]`` on a free port (page and WebSocket), until ``close()``.
 
-    url: the URL it printed; stderr: what it wrote there (after close)."""
+    url: the URL it printed (with its token); stderr: what it wrote there (after close)."""
 
     def __init__(self, recording: Path, *extra: str, timeout: float = 120):
-        self.port, self.web_port = free_port(), free_port()
-        while self.web_port == self.port:
-            self.web_port = free_port()
+        self.web_port = free_port()
         self.proc = subprocess.Popen(
-            [*FVIZ, "open", str(recording), "--web", "--port", str(self.port), "--web-port", str(self.web_port), *extra],
+            [*FVIZ, "open", str(recording), "--web", "--web-port", str(self.web_port), *extra],
             stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
         )
         self.lines: list[str] = []
@@ -164,7 +162,6 @@ class WebServer:
                 time.sleep(0.05)
             self.url = next(w for line in self.lines for w in line.split() if w.startswith("http://"))
             wait_port(self.web_port, timeout, self.proc)
-            wait_port(self.port, timeout, self.proc)
         except BaseException:
             self.close()
             raise

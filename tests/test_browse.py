@@ -81,12 +81,10 @@ def test_open_web_binds_loopback_by_default(inspected, bind):
     path, _ = inspected
     extra = [] if bind is None else ["--bind", bind]
     with WebServer(path, *extra) as server:
-        assert server.url.startswith(f"http://127.0.0.1:{server.web_port}/")
-        assert f"ws://127.0.0.1:{server.port}" in server.url  # the page's WebSocket (fviz.web)
+        assert server.url.startswith(f"http://127.0.0.1:{server.web_port}/?token=")  # page and WebSocket (fviz.web)
         sockets = listening(server.processes())
-        ours = {(ip, port) for ip, port in sockets if port in (server.port, server.web_port)}
         want = "127.0.0.1" if bind is None else bind
-        assert ours == {(want, server.port), (want, server.web_port)}, sockets
+        assert {(ip, port) for ip, port in sockets if port == server.web_port} == {(want, server.web_port)}, sockets
         if bind is None:
             assert all(ip in ("127.0.0.1", "::1") for ip, _ in sockets), sockets
         tree = server.processes()
@@ -98,7 +96,8 @@ def test_open_web_binds_loopback_by_default(inspected, bind):
 
 def test_open_rejects_bad_ports(inspected):
     path, _ = inspected
-    r = run_fviz("open", path, "--web", "--port", "7000", "--web-port", "7000")
+    # two servers with --web-static (Rerun's); --web serves on --web-port alone
+    r = run_fviz("open", path, "--web-static", "--port", "7000", "--web-port", "7000")
     assert r.returncode == 2 and "--port and --web-port" in r.stderr
     r = run_fviz("open", path, "--web", "--port", "70000")
     assert r.returncode == 2 and "--port 70000" in r.stderr

@@ -201,7 +201,8 @@ def test_notebook_click_draws_the_lines_in_the_other_image(evaluated, tmp_path):
 def test_the_page_socket_sends_the_recording_and_answers_a_click_with_its_lines(tmp_path):
     """What the browser page does, spoken by a plain WebSocket client: the recording's bytes first; a
     selection's JSON in, the click's bytes out (b/click: one line per F through F x_a); a non-click event
-    (time) gets no answer, and the page itself and the viewer's files are served over HTTP."""
+    (time) gets no answer, and the page itself and the viewer's files are served over HTTP, all on one port.
+    (What the server refuses: tests/test_web_server.py.)"""
     import json
     import urllib.request
     import warnings
@@ -210,20 +211,22 @@ def test_the_page_socket_sends_the_recording_and_answers_a_click_with_its_lines(
     from browser import free_port, run_fviz
     from rerun.chunk import RrdReader
 
-    from fviz.web.server import ClickServer
+    from fviz.web.server import PageServer
 
     rec = tmp_path / "p.rrd"
     r = run_fviz("inspect", "pair", "--synthetic", "--seed", "0", "-e", "8point", "-e", "ransac", "--out", rec, "--json")
     assert r.returncode == 0, r.stderr
     Fs = {e["name"]: np.array(e["F"]) for e in json.loads(r.stdout)["estimators"] if e["F"] is not None}
-    port, web_port = free_port(), free_port()
-    server = ClickServer(rec, "127.0.0.1", port, web_port).start()
+    port = free_port()
+    server = PageServer(rec, "127.0.0.1", port).start()
     try:
-        page = urllib.request.urlopen(f"http://127.0.0.1:{web_port}/", timeout=10).read().decode()
-        assert f":{port}/" in page and "widget.js" in page
-        head = urllib.request.urlopen(f"http://127.0.0.1:{web_port}/re_viewer_bg.wasm", timeout=10)
+        assert server.url == f"http://127.0.0.1:{port}/?token={server.token}"
+        page = urllib.request.urlopen(server.url, timeout=10).read().decode()
+        assert "/ws?token=" in page and "widget.js" in page
+        head = urllib.request.urlopen(f"http://127.0.0.1:{port}/re_viewer_bg.wasm", timeout=10)
         assert head.headers["Content-Type"] == "application/wasm"
-        ws = websocket.create_connection(f"ws://127.0.0.1:{port}/", timeout=30)
+        ws = websocket.create_connection(f"ws://127.0.0.1:{port}/ws?token={server.token}", timeout=30,
+                                         origin=f"http://127.0.0.1:{port}")
         assert ws.recv() == rec.read_bytes()
         ws.send("ready")
         ws.send(json.dumps({"type": "time_update", "application_id": "x", "recording_id": "y", "time": 0.0}))

@@ -102,11 +102,12 @@ def busy_port():
 # ------------------------------------------------------------------------------ item 11
 
 
-@pytest.mark.parametrize("flag", ["--port", "--web-port"])
-def test_busy_port_is_refused_before_any_url(recording, busy_port, flag):
+@pytest.mark.parametrize("mode, flag", [("--web", "--web-port"), ("--web-static", "--port"), ("--web-static", "--web-port")])
+def test_busy_port_is_refused_before_any_url(recording, busy_port, mode, flag):
+    """--port is Rerun's recording server (--web-static); --web serves page and WebSocket on --web-port alone."""
     port, web_port = two_ports()
     ports = {"--port": port, "--web-port": web_port, flag: busy_port}
-    r = run_fviz("open", recording, "--web", "--port", ports["--port"], "--web-port", ports["--web-port"], timeout=BUDGET_S)
+    r = run_fviz("open", recording, mode, "--port", ports["--port"], "--web-port", ports["--web-port"], timeout=BUDGET_S)
     assert_one_line_error(r, 2, f"{flag} {busy_port}", "already in use")
     assert "http://" not in r.stdout
 
@@ -124,9 +125,10 @@ def test_url_is_printed_once_the_viewer_serves(recording, mode):
     port, web_port = two_ports()
     proc, url = start_web("open", str(recording), mode, "--port", str(port), "--web-port", str(web_port))
     try:
-        assert url.startswith(f"http://127.0.0.1:{web_port}/") and f"127.0.0.1:{port}" in url
+        assert url.startswith(f"http://127.0.0.1:{web_port}/")
+        assert f"127.0.0.1:{port}" in url if mode == "--web-static" else "?token=" in url
         assert page_status(url) == 200  # no waiting: it already serves
-        assert answers(port)
+        assert answers(port) == (mode == "--web-static")  # --web: page and WebSocket on --web-port alone
     finally:
         proc.send_signal(signal.SIGINT)
         try:
@@ -157,7 +159,7 @@ def _server_dies_with_fviz(args: list[str], sig: int, mode: str = "--web") -> No
     servers = children(proc.pid)
     if mode == "--web-static":
         assert servers and all(alive(pid) for pid in servers)
-    assert answers(port) and answers(web_port)
+    assert answers(web_port) and answers(port) == (mode == "--web-static")
     os.kill(proc.pid, sig)
     proc.wait(timeout=BUDGET_S)
     try:

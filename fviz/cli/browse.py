@@ -20,10 +20,13 @@ KEY_METRICS = ("sed_median", "sampson_median", "rot_err_deg", "trans_err_deg", "
 Recording = Annotated[Path, typer.Argument(help="A .rrd written by fviz (inspect, eval or triage).", show_default=False)]
 
 
-WebBind = Annotated[str, typer.Option("--bind", help="Address the web viewer's servers listen on; 0.0.0.0 exposes them to the network.")]
-Port = Annotated[int, typer.Option("--port", help="Port of the recording (gRPC) server, with --web.",
+WebBind = Annotated[str, typer.Option("--bind", help="Address the web viewer listens on; 0.0.0.0 exposes it to the network.")]
+Port = Annotated[int, typer.Option("--port", help="Port of Rerun's recording (gRPC) server, with --web-static only (--web serves all on --web-port).",
                                    callback=o.checked("--port", lambda p: 1 <= p <= 65535, "must be a port 1 .. 65535"))]
-WebPort = Annotated[int, typer.Option("--web-port", help="Port of the web viewer's page, with --web.",
+# inspect's --port: kept so that scripts passing it still run; its --web serves on --web-port alone
+UnusedPort = Annotated[int, typer.Option("--port", help="Unused (was the recording server's port): --web serves on --web-port alone.",
+                                         callback=o.checked("--port", lambda p: 1 <= p <= 65535, "must be a port 1 .. 65535"))]
+WebPort = Annotated[int, typer.Option("--web-port", help="Port of the web viewer: its page and, with --web, the page's WebSocket.",
                                       callback=o.checked("--web-port", lambda p: 1 <= p <= 65535, "must be a port 1 .. 65535"))]
 
 
@@ -44,7 +47,10 @@ def serve(path: Path, bind: str, port: int, web_port: int, blueprint: Optional[P
             raise FvizError(f"{name} {value}: not a port (1-65535)")
     if bind not in ("127.0.0.1", "localhost", "::1"):
         print(f"warning: --bind {bind}: the viewer and the recording are reachable from other machines", file=sys.stderr)
-    (serve_web if static else serve_clicks)(path, bind, port, web_port, blueprint)
+    if static:
+        serve_web(path, bind, port, web_port, blueprint)
+    else:
+        serve_clicks(path, bind, web_port, blueprint)
 
 
 def tab_blueprint(path: Path, tab: str) -> Path:

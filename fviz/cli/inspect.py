@@ -10,7 +10,7 @@ from typing import Annotated, Optional
 import typer
 
 from fviz.cli import options as o
-from fviz.cli.browse import Port, WebBind, WebPort
+from fviz.cli.browse import UnusedPort, WebBind, WebPort
 
 
 def default_out(name: str) -> Path:
@@ -46,7 +46,7 @@ def pair(
     spawn: Annotated[bool, typer.Option("--spawn", help="Open the native Rerun viewer on the recording.")] = False,
     web: Annotated[bool, typer.Option("--web", help="Serve the web viewer on 127.0.0.1 (until Ctrl-C) and print its URL.")] = False,
     bind: WebBind = "127.0.0.1",
-    port: Port = 9876,
+    port: UnusedPort = 9876,
     web_port: WebPort = 9090,
     synthetic: o.Synthetic = False,
     image_a: o.ImageA = None,
@@ -130,10 +130,7 @@ def _check_viewer(spawn: bool, web: bool, bind: str, port: int, web_port: int) -
 
     if spawn and not has_display():
         raise FvizError("--spawn: no display for the native viewer (DISPLAY and WAYLAND_DISPLAY are unset); use --web")
-    if web:
-        if port == web_port:
-            raise FvizError(f"--port and --web-port are both {port}: they need two ports")
-        check_port_free(bind, port, "--port")
+    if web:  # fviz's page serves on --web-port alone (--port is --web-static's, which inspect has not)
         check_port_free(bind, web_port, "--web-port")
 
 

@@ -1,24 +1,56 @@
-"""The page's two servers (see :mod:`fviz.web`): HTTP for the page and the viewer's files, and a minimal
-WebSocket (RFC 6455: one unfragmented message per frame, which is what browsers send for short texts) for
-the recording's bytes, the viewer's events and the clicks' answers. Standard library only."""
+"""The page's server (see :mod:`fviz.web`): one aiohttp server on one port (``--web-port``), run by an asyncio
+loop in one daemon thread of the fviz process:
+
+- ``GET /?token=T``: the page (``page.html``, which hosts rerun-notebook's viewer);
+- ``GET /widget.js``, ``/widget.css``, ``/re_viewer_bg.wasm``: the viewer's files, streamed from the installed
+  package (sendfile: no copy per client);
+- ``GET /ws?token=T``: the WebSocket: the recording's bytes (and a blueprint's) out, the viewer's events (JSON
+  texts) in, each click answered with the bytes of its lines (:class:`ClickApp`).
+
+What it protects (docs/interactive.md, "What the page protects, and how"): the recording and the page go only to
+a client holding the per-launch secret token of the printed URL (:func:`secrets.token_urlsafe`); every request's
+Host must name the bound address and port (a DNS-rebinding page names its own domain); a socket's Origin, when
+sent (browsers always send it), must be the page's own (cross-site WebSocket hijacking). Resources are bounded:
+client messages (``MAX_MESSAGE`` bytes, text only), open sockets (``MAX_SOCKETS``), a send that takes over
+``SEND_TIMEOUT_S`` drops its client, a silent client is dropped by the heartbeat, the events kept per app are few
+and cut short; no thread per connection (clicks run on a pool of ``CLICK_THREADS``).
+"""
 
 from __future__ import annotations
 
-import base64
-import hashlib
-import http.server
-import socketserver
-import struct
+import asyncio
+import collections
+import hmac
+import html
+import ipaddress
+import secrets
+import socket
 import sys
 import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
+from urllib.parse import urlsplit
 
 from fviz.errors import FvizError
 
-_GUID = b"258EAFA5-E914-47DA-95CA-C5AB0DC85B11"
 PAGE = Path(__file__).with_name("page.html")
-TYPES = {".js": "text/javascript", ".wasm": "application/wasm", ".css": "text/css", ".html": "text/html; charset=utf-8"}
+TYPES = {".js": "text/javascript", ".wasm": "application/wasm", ".css": "text/css"}
+STATIC = ("widget.js", "widget.css", "re_viewer_bg.wasm")
+NO_STORE = {"Cache-Control": "no-store"}
+# The page: no Referer (its URL holds the token), never framed by another site.
+PAGE_HEADERS = {**NO_STORE, "Referrer-Policy": "no-referrer", "Content-Security-Policy": "frame-ancestors 'none'",
+                "X-Content-Type-Options": "nosniff"}
+
+MAX_MESSAGE = 1 << 20  # bytes of one client message: the viewer's events are JSON texts of a few kB
+MAX_SOCKETS = 8  # pages open at once; more are refused (503)
+SEND_TIMEOUT_S = 120.0  # one message (the recording itself: a client that stops reading is dropped)
+HEARTBEAT_S = 60.0  # ping after this long without a message; no pong within half of it: dropped
+CLICK_THREADS = 2  # the clicks' answers (~3-20 ms each) run off the loop, on these
+KEEP_EVENTS, KEEP_EVENT_CHARS = 64, 4096  # ClickApp.events: the last events, each cut to this length
+KEEP_TIMINGS = 10_000
+LOOPBACK = ("127.0.0.1", "localhost", "::1")
+WILDCARD = ("0.0.0.0", "::", "")
 
 
 def static_dir() -> Path:
@@ -31,118 +63,12 @@ def static_dir() -> Path:
     return Path(spec.origin).parent / "static"
 
 
-def accept_key(key: str) -> str:
-    """Sec-WebSocket-Accept for a Sec-WebSocket-Key."""
-    return base64.b64encode(hashlib.sha1(key.strip().encode() + _GUID).digest()).decode()
-
-
-def frame(payload: bytes, opcode: int) -> bytes:
-    """One unmasked, final server frame."""
-    n = len(payload)
-    head = bytes([0x80 | opcode])
-    if n < 126:
-        head += bytes([n])
-    elif n < 1 << 16:
-        head += bytes([126]) + struct.pack(">H", n)
-    else:
-        head += bytes([127]) + struct.pack(">Q", n)
-    return head + payload
-
-
-def read_frame(f) -> tuple[int, bytes] | None:
-    """(opcode, unmasked payload) of the next frame from a file-like socket, None at EOF."""
-    head = f.read(2)
-    if len(head) < 2:
-        return None
-    op, n = head[0] & 0x0F, head[1] & 0x7F
-    if n == 126:
-        n = struct.unpack(">H", f.read(2))[0]
-    elif n == 127:
-        n = struct.unpack(">Q", f.read(8))[0]
-    mask = f.read(4) if head[1] & 0x80 else None
-    data = f.read(n)
-    if mask:
-        import numpy as np
-
-        data = (np.frombuffer(data, np.uint8) ^ np.resize(np.frombuffer(mask, np.uint8), n)).tobytes()
-    return op, data
-
-
-class _Page(http.server.BaseHTTPRequestHandler):
-    server_version = "fviz"
-
-    def do_GET(self):  # noqa: N802 (http.server's name)
-        name = self.path.split("?")[0].lstrip("/") or "index.html"
-        if name == "index.html":
-            body = self.server.page  # type: ignore[attr-defined]
-        elif name in ("widget.js", "widget.css", "re_viewer_bg.wasm"):
-            body = (self.server.static / name).read_bytes()  # type: ignore[attr-defined]
-        else:
-            self.send_error(404)
-            return
-        self.send_response(200)
-        self.send_header("Content-Type", TYPES[Path(name).suffix])
-        self.send_header("Content-Length", str(len(body)))
-        self.send_header("Cache-Control", "no-store")
-        self.end_headers()
-        self.wfile.write(body)
-
-    def log_message(self, *args):  # quiet
-        pass
-
-
-class _Socket(socketserver.StreamRequestHandler):
-    """One page: the recording's bytes, then the viewer's events in and the clicks' bytes out."""
-
-    def handle(self):
-        headers = {}
-        self.rfile.readline()
-        while (line := self.rfile.readline().decode("latin-1").strip()):
-            k, _, v = line.partition(":")
-            headers[k.strip().lower()] = v.strip()
-        if "sec-websocket-key" not in headers:
-            self.wfile.write(b"HTTP/1.1 426 Upgrade Required\r\nContent-Length: 0\r\n\r\n")
-            return
-        self.wfile.write(("HTTP/1.1 101 Switching Protocols\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
-                          f"Sec-WebSocket-Accept: {accept_key(headers['sec-websocket-key'])}\r\n\r\n").encode())
-        app = self.server.app  # type: ignore[attr-defined]
-        for blob in app.initial():
-            self.wfile.write(frame(blob, 0x2))
-        answer = app.new_connection()
-        while (msg := read_frame(self.rfile)) is not None:
-            op, data = msg
-            if op == 0x8:
-                self.wfile.write(frame(data[:2], 0x8))
-                return
-            if op == 0x9:
-                self.wfile.write(frame(data, 0xA))
-            elif op == 0x1:
-                out = answer(data.decode("utf-8", "replace"))
-                if out:
-                    self.wfile.write(frame(out, 0x2))
-
-
-class _Threading(socketserver.ThreadingTCPServer):
-    daemon_threads = True
-    allow_reuse_address = True
-
-    def __init__(self, host: str, port: int, handler):
-        import socket
-
-        self.address_family = socket.AF_INET6 if ":" in host else socket.AF_INET
-        super().__init__((host, port), handler)
-
-    def handle_error(self, request, client_address):
-        """A page closed or reloaded mid-transfer is no error; anything else is printed as usual."""
-        if not isinstance(sys.exc_info()[1], (ConnectionError, TimeoutError)):
-            super().handle_error(request, client_address)
-
-
 class ClickApp:
     """What a page gets: the recording's bytes (and a blueprint's) first; then per event JSON string the
     bytes of the click it made, if any (:class:`fviz.interactive.ClickSession`, one per page).
 
-    ``timings``: per click (seconds from the event received to its bytes ready), for the benchmark."""
+    ``timings``: per click (seconds from the event received to its bytes ready), for the benchmark; ``events``:
+    the last ``KEEP_EVENTS`` events received, each cut to ``KEEP_EVENT_CHARS`` (both bounded)."""
 
     def __init__(self, path: Path, blueprint: Path | None = None):
         from fviz.record.reader import click_pairs, store_ids, timelines
@@ -152,8 +78,8 @@ class ClickApp:
         self.ids = store_ids(path)
         self.pairs = click_pairs(path)
         self.stamps = tuple(t for t in timelines(path) if t == L.PROBE_TIMELINE)
-        self.timings: list[float] = []
-        self.events: list[str] = []
+        self.timings: collections.deque[float] = collections.deque(maxlen=KEEP_TIMINGS)
+        self.events: collections.deque[str] = collections.deque(maxlen=KEEP_EVENTS)
 
     def initial(self) -> list[bytes]:
         return [self.path.read_bytes()] + ([Path(self.blueprint).read_bytes()] if self.blueprint else [])
@@ -171,7 +97,7 @@ class ClickApp:
 
         def answer(text: str) -> bytes | None:
             t0 = time.perf_counter()
-            self.events.append(text)
+            self.events.append(text[:KEEP_EVENT_CHARS])
             try:
                 event = _viewer_event_from_json_str(text)
             except (ValueError, KeyError):
@@ -185,40 +111,232 @@ class ClickApp:
         return answer
 
 
-class ClickServer:
-    """Both servers on ``host``: the page on ``web_port``, the WebSocket on ``port`` (threads of this process)."""
+# ------------------------------------------------------------------------------------------ who may ask
 
-    def __init__(self, path: Path, host: str = "127.0.0.1", port: int = 9876, web_port: int = 9090,
-                 blueprint: Path | None = None):
+
+def _is_ip(name: str) -> bool:
+    try:
+        ipaddress.ip_address(name)
+        return True
+    except ValueError:
+        return False
+
+
+def host_names(bind: str) -> frozenset[str]:
+    """The host names a request may name for a server bound to ``bind``: its address (and every loopback name
+    when bound to loopback or to every interface; then also this machine's names)."""
+    bind = bind.strip("[]").lower()
+    names = {bind}
+    if bind in LOOPBACK or bind.startswith("127.") or bind in WILDCARD:
+        names |= set(LOOPBACK)
+    if bind in WILDCARD:
+        names |= {socket.gethostname().lower(), socket.getfqdn().lower()}
+    return frozenset(names - {""})
+
+
+def host_allowed(host: str | None, bind: str, port: int) -> bool:
+    """Whether a Host header names this server: one of :func:`host_names` (or, bound to every interface, any IP
+    literal) and ``port``. Any other name, such as a DNS-rebinding page's domain, is refused."""
+    if not host:
+        return False
+    try:
+        parts = urlsplit(f"//{host}")
+        name, p = (parts.hostname or "").lower(), parts.port or 80
+    except ValueError:  # a port that is no number
+        return False
+    if p != port:
+        return False
+    return name in host_names(bind) or (bind.strip("[]") in WILDCARD and _is_ip(name))
+
+
+def token_ok(given: str | None, token: str) -> bool:
+    return given is not None and hmac.compare_digest(given.encode(), token.encode())
+
+
+def shown_host(bind: str) -> str:
+    """The address to print in the URL for a server bound to ``bind``."""
+    if bind in ("0.0.0.0", ""):
+        return "127.0.0.1"
+    if bind == "::":
+        return "[::1]"
+    return f"[{bind}]" if ":" in bind else bind
+
+
+# -------------------------------------------------------------------------------------------- the server
+
+
+class PageServer:
+    """The page, the viewer's files and the WebSocket on ``host:port`` (an asyncio loop in one daemon thread)
+    until :meth:`close`. ``url``: the page's URL, with the token."""
+
+    def __init__(self, path: Path, host: str = "127.0.0.1", port: int = 9090, blueprint: Path | None = None):
         self.app = ClickApp(path, blueprint)
-        self.ws = _Threading(host, port, _Socket)
-        self.ws.app = self.app  # type: ignore[attr-defined]
-        self.http = _Threading(host, web_port, _Page)
-        self.http.static = static_dir()  # type: ignore[attr-defined]
-        self.http.page = PAGE.read_text().replace("__WS_PORT__", str(port)).replace(  # type: ignore[attr-defined]
-            "__TITLE__", Path(path).name).encode()
-        shown = "127.0.0.1" if host in ("0.0.0.0", "::", "") else f"[{host}]" if ":" in host else host
-        self.url = f"http://{shown}:{web_port}/?recording=ws://{shown}:{port}"
-        self._threads = [threading.Thread(target=s.serve_forever, daemon=True) for s in (self.ws, self.http)]
+        self.host, self.port = host, port
+        self.token = secrets.token_urlsafe(32)
+        self.static = static_dir()
+        self.page = PAGE.read_text().replace("__TITLE__", html.escape(Path(path).name)).encode()
+        self.url = f"http://{shown_host(host)}:{port}/?token={self.token}"
+        self.sockets: set = set()
+        self.pool = ThreadPoolExecutor(CLICK_THREADS, thread_name_prefix="fviz-click")
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._runner = None
+        self._ready = threading.Event()
+        self._error: BaseException | None = None
+        self._thread = threading.Thread(target=self._run, name="fviz-web", daemon=True)
 
-    def start(self) -> "ClickServer":
-        for t in self._threads:
-            t.start()
+    # ---- lifecycle
+
+    def start(self) -> "PageServer":
+        """Serve; return once it listens (the bind's error, such as a taken port, is raised here)."""
+        self._thread.start()
+        self._ready.wait()
+        if isinstance(self._error, OSError):  # taken since prepare_serving checked it, or no such address
+            raise FvizError(f"--web-port {self.port}: cannot listen on {self.host} ({self._error.strerror or self._error})")
+        if self._error is not None:
+            raise self._error
         return self
 
     def close(self) -> None:
-        for s in (self.ws, self.http):
-            s.shutdown()
-            s.server_close()
+        """Close every socket, stop serving and end the loop's thread."""
+        loop = self._loop
+        if loop is not None and loop.is_running():
+            try:
+                asyncio.run_coroutine_threadsafe(self._stop(), loop).result(timeout=10)
+            except Exception:  # noqa: BLE001 (stopping: whatever is left dies with the thread)
+                pass
+            loop.call_soon_threadsafe(loop.stop)
+        self._thread.join(timeout=10)
+        self.pool.shutdown(wait=False, cancel_futures=True)
+
+    def _run(self) -> None:
+        self._loop = loop = asyncio.new_event_loop()
+        try:
+            loop.run_until_complete(self._serve())
+        except BaseException as exc:  # noqa: BLE001 (handed to start())
+            self._error = exc
+            self._ready.set()
+            loop.close()
+            return
+        self._ready.set()
+        try:
+            loop.run_forever()
+        finally:
+            loop.close()
+
+    async def _serve(self) -> None:
+        from aiohttp import web
+
+        @web.middleware
+        async def check_host(request, handler):
+            return await self._check_host(request, handler)
+
+        app = web.Application(middlewares=[check_host], client_max_size=4096)
+        app.router.add_get("/", self._page)
+        app.router.add_get("/ws", self._socket)
+        for name in STATIC:
+            app.router.add_get(f"/{name}", self._file)
+        self._runner = web.AppRunner(app, handle_signals=False, access_log=None, shutdown_timeout=2,
+                                     keepalive_timeout=15)
+        await self._runner.setup()
+        await web.TCPSite(self._runner, self.host, self.port, reuse_address=True).start()
+
+    async def _stop(self) -> None:
+        from aiohttp import WSCloseCode
+
+        closing = [asyncio.ensure_future(ws.close(code=WSCloseCode.GOING_AWAY, message=b"fviz stopped"))
+                   for ws in self.sockets]
+        if closing:  # all at once, 2 s at most (a page that does not answer is cut by the cleanup)
+            await asyncio.wait(closing, timeout=2)
+        if self._runner is not None:
+            await self._runner.cleanup()
+
+    # ---- requests
+
+    async def _check_host(self, request, handler):
+        """Every request (HTTP and WebSocket): its Host names this server, or 403 (DNS rebinding)."""
+        from aiohttp import hdrs, web
+
+        if not host_allowed(request.headers.get(hdrs.HOST), self.host, self.port):
+            raise web.HTTPForbidden(text="fviz: this server answers only to its own address\n")
+        return await handler(request)
+
+    def _refused(self, request, socket_: bool):
+        """The error response for a request without the token (or, on the socket, from a foreign page), else None."""
+        from aiohttp import hdrs, web
+
+        if not token_ok(request.query.get("token"), self.token):
+            return web.HTTPForbidden(text="fviz: open the URL fviz printed, with its token\n")
+        origin = request.headers.get(hdrs.ORIGIN)
+        if socket_ and origin is not None and origin != f"http://{request.host}":
+            return web.HTTPForbidden(text="fviz: foreign origin\n")
+        return None
+
+    async def _page(self, request):
+        from aiohttp import web
+
+        if (refused := self._refused(request, socket_=False)) is not None:
+            raise refused
+        return web.Response(body=self.page, content_type="text/html", charset="utf-8", headers=PAGE_HEADERS)
+
+    async def _file(self, request):
+        """The viewer's files (public: the package's own), streamed from disk."""
+        from aiohttp import web
+
+        name = request.path.lstrip("/")
+        return web.FileResponse(self.static / name, headers={**NO_STORE, "Content-Type": TYPES[Path(name).suffix]})
+
+    async def _socket(self, request):
+        from aiohttp import web
+
+        if (refused := self._refused(request, socket_=True)) is not None:
+            raise refused
+        if len(self.sockets) >= MAX_SOCKETS:
+            raise web.HTTPServiceUnavailable(text=f"fviz: {MAX_SOCKETS} pages are open already\n")
+        ws = web.WebSocketResponse(max_msg_size=MAX_MESSAGE, heartbeat=HEARTBEAT_S, compress=False)
+        self.sockets.add(ws)
+        try:
+            await ws.prepare(request)
+            await self._talk(ws, request)
+        finally:
+            self.sockets.discard(ws)
+        return ws
+
+    async def _talk(self, ws, request) -> None:
+        """The recording out, then the events in and their answers out, until either side closes."""
+        from aiohttp import WSCloseCode, WSMsgType
+
+        loop = asyncio.get_running_loop()
+        for blob in await loop.run_in_executor(self.pool, self.app.initial):
+            if not await self._send(ws, request, blob):
+                return
+        answer = await loop.run_in_executor(self.pool, self.app.new_connection)
+        async for msg in ws:  # a message over MAX_MESSAGE: aiohttp closes the socket (1009)
+            if msg.type == WSMsgType.BINARY:
+                await ws.close(code=WSCloseCode.UNSUPPORTED_DATA, message=b"text messages only")
+                return
+            if msg.type == WSMsgType.TEXT:
+                out = await loop.run_in_executor(self.pool, answer, msg.data)
+                if out and not await self._send(ws, request, out):
+                    return
+
+    @staticmethod
+    async def _send(ws, request, data: bytes) -> bool:
+        """Send, or drop a client that does not read it within SEND_TIMEOUT_S (or is gone): whether it was sent."""
+        try:
+            await asyncio.wait_for(ws.send_bytes(data), SEND_TIMEOUT_S)
+            return True
+        except (asyncio.TimeoutError, ConnectionError):
+            if request.transport is not None:
+                request.transport.abort()
+            return False
 
 
-def serve_clicks(path: Path, host: str = "127.0.0.1", port: int = 9876, web_port: int = 9090,
-                 blueprint: Path | None = None) -> None:
+def serve_clicks(path: Path, host: str = "127.0.0.1", web_port: int = 9090, blueprint: Path | None = None) -> None:
     """Serve the clickable page until Ctrl-C, SIGTERM or SIGHUP; print its URL once it serves."""
     from fviz.viewer import prepare_serving
 
-    prepare_serving(path, host, port, web_port)
-    server = ClickServer(path, host, port, web_port, blueprint).start()
+    prepare_serving(path, host, None, web_port)
+    server = PageServer(path, host, web_port, blueprint).start()
     try:
         print(f"web viewer: {server.url}  (click a point of either image for its epipolar lines; Ctrl-C to stop)",
               flush=True)
