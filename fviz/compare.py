@@ -27,12 +27,12 @@ from pathlib import Path
 
 from fviz.atomic import write_text
 from fviz.errors import FvizError
+from fviz.stats import EXACT_MAX_N, Wilcoxon, signed_ranks, wilcoxon_signed_rank  # noqa: F401 (re-exported)
 from fviz.verdicts import ERROR, ERRORS, HIGHER_IS_BETTER, fails, fails_column, fails_label
 
 COMPARE_FILE = "compare.md"
 FAIL_THRESHOLD = None  # the metric's own threshold (fviz.verdicts); --fail-threshold replaces it
 TIE_REL = 0.05  # default: values within 5 % of the larger one are a tie (a 0.21 vs 0.2101 px "win" says nothing)
-EXACT_MAX_N = 50  # Wilcoxon: exact distribution up to this many non-zero differences
 NO_VALUE = "errors (no F or no value)"  # a side's pairs without a value: summary rows and compare.md
 
 
@@ -158,66 +158,6 @@ def compare_values(a: Side, b: Side, metric: str, va: dict[str, tuple[float, str
             d = (y - x) if not hb else (x - y)  # > 0: a better
             (c.ties if is_tie(x, y, tie, tie_rel) else c.wins if d > 0 else c.losses).append(name)
     return c
-
-
-@dataclass(frozen=True)
-class Wilcoxon:
-    """Wilcoxon's signed-rank test of paired differences: ``n`` non-zero differences (zeros are dropped), the
-    rank sums of the positive and negative ones, the two-sided p-value and how it was computed
-    (``exact``, ``normal``, or ``none`` when no difference is non-zero: p is NaN)."""
-
-    n: int
-    w_plus: float
-    w_minus: float
-    p: float
-    method: str
-
-
-def signed_ranks(d) -> "tuple[np.ndarray, np.ndarray]":  # noqa: F821 (numpy imported inside)
-    """(ranks of |d| with ties averaged, signs) of the non-zero differences. (N,) -> (n,), (n,)."""
-    import numpy as np
-
-    d = np.asarray(d, np.float64)
-    d = d[np.isfinite(d) & (d != 0)]
-    order = np.argsort(np.abs(d), kind="stable")
-    a = np.abs(d)[order]
-    ranks = np.empty(len(d))
-    i = 0
-    while i < len(a):  # runs of equal |d| share their mean rank
-        j = i
-        while j + 1 < len(a) and a[j + 1] == a[i]:
-            j += 1
-        ranks[order[i: j + 1]] = (i + j) / 2 + 1
-        i = j + 1
-    return ranks, np.sign(d)
-
-
-def wilcoxon_signed_rank(d) -> Wilcoxon:
-    """Two-sided Wilcoxon signed-rank test of the differences ``d`` (N,): exact (every sign flip of the
-    ranks, ties averaged: the doubled ranks are integers) up to EXACT_MAX_N non-zero differences, above
-    that the normal approximation with the tie correction and a continuity correction."""
-    import numpy as np
-
-    ranks, signs = signed_ranks(d)
-    n = len(ranks)
-    w_plus, w_minus = float(ranks[signs > 0].sum()), float(ranks[signs < 0].sum())
-    if n == 0:
-        return Wilcoxon(0, 0.0, 0.0, math.nan, "none")
-    if n <= EXACT_MAX_N:
-        doubled = np.round(2 * ranks).astype(int)
-        counts = np.zeros(int(doubled.sum()) + 1)  # counts[s]: sign assignments whose doubled W+ is s
-        counts[0] = 1.0
-        for r in doubled:
-            counts[r:] += counts[:-r].copy()  # r >= 2: each match either adds its rank or not
-        prob = counts / counts.sum()
-        w = int(round(2 * w_plus))
-        p = 2 * min(prob[: w + 1].sum(), prob[w:].sum())
-        return Wilcoxon(n, w_plus, w_minus, float(min(1.0, p)), "exact")
-    _, tied = np.unique(ranks, return_counts=True)
-    mean = n * (n + 1) / 4
-    sd = math.sqrt(n * (n + 1) * (2 * n + 1) / 24 - float((tied**3 - tied).sum()) / 48)
-    z = (abs(w_plus - mean) - 0.5) / sd if sd > 0 else 0.0
-    return Wilcoxon(n, w_plus, w_minus, float(min(1.0, math.erfc(max(z, 0.0) / math.sqrt(2)))), "normal")
 
 
 def _median_diff(c: Comparison) -> float:

@@ -17,12 +17,11 @@ from typing import Any
 import numpy as np
 
 from fviz.evaluate import EVAL_THRESHOLD_PX, GT_NAME
+from fviz.geometry.homography import HOMOGRAPHY_PX, MIN_FIT, homography_fraction  # noqa: F401 (re-exported)
 
-HOMOGRAPHY_PX = 2.0
 ROTATION_PX = 2.0
 STATIC_PX = 0.5  # a match moving less than this is static (identical images: every match)
 STATIC_FRACTION = 0.9  # this share of the matches static: degenerate (fviz.verdicts, fviz.triage)
-MIN_FIT = 8  # fewer inliers than this: no homography is fitted
 # Evidence with redundancy: a fit through as many matches as it has degrees of freedom fits them exactly, so its
 # residuals say nothing. A fit is evidence only with MIN_SPARE matches beyond F's 7 degrees of freedom, and then only
 # through its out-of-sample residuals (HELDOUT_FOLDS-fold cross-validation of an 8-point refit: :func:`heldout_sed`).
@@ -78,17 +77,6 @@ GT_BIAS_MIN_DEG = 0.2  # and a median offset at least this large (KITTI: 2.5 px 
 PLANAR_FRACTION = 0.8
 SMALL_BASELINE_M = 0.1
 ROTATION_FRACTION = 0.8
-
-
-def homography_fraction(x_a: np.ndarray, x_b: np.ndarray) -> float:
-    """Fraction of the correspondences one RANSAC homography explains (NaN for fewer than MIN_FIT)."""
-    import cv2
-
-    if len(x_a) < MIN_FIT:
-        return float("nan")
-    cv2.setRNGSeed(0)
-    H, mask = cv2.findHomography(x_a.astype(np.float64), x_b.astype(np.float64), cv2.RANSAC, HOMOGRAPHY_PX)
-    return float("nan") if H is None else float(mask.ravel().astype(bool).mean())
 
 
 def heldout_sed(x_a: np.ndarray, x_b: np.ndarray, folds: int = HELDOUT_FOLDS, seed: int = 0) -> np.ndarray:
@@ -566,7 +554,7 @@ def gt_bias(evidence) -> dict[str, Any] | None:
     for fits, _ in evidence:
         for name, offset in fits.items():
             per.setdefault(name, []).append(offset)
-    from fviz.compare import wilcoxon_signed_rank
+    from fviz.stats import wilcoxon_signed_rank
 
     tests = [(wilcoxon_signed_rank(np.array(o)[:, axis]).p, name, axis) for name, o in per.items()
              if len(o) >= GT_BIAS_MIN_PAIRS for axis in (0, 1)]

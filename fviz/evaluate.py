@@ -71,6 +71,11 @@ EVAL_THRESHOLD_PX = 2.0
 MIN_MATCHES = 8  # what most estimators need; 7point and PoseLib work from 7 (see too_few_matches)
 
 
+def metric_unit(key: str) -> str:
+    """The unit a metric is in ("px", "deg" or "")."""
+    return "px" if key.startswith(("sed", "sampson")) else "deg" if key.endswith("_deg") else ""
+
+
 def too_few_matches(result) -> bool:
     """Whether the pair fails as a whole for want of matches: fewer than MIN_MATCHES and no estimator made an F
     of them (7 matches are enough for 7point and PoseLib: then only the estimators that need more fail)."""

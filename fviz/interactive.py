@@ -23,35 +23,10 @@ import numpy as np
 
 from fviz.geometry import clip_lines, lines_in_a, lines_in_b, symmetric_epipolar_distance
 from fviz.record import layout as L
+from fviz.record.clickable import PairFs  # noqa: F401 (re-exported: the public name)
 
 SNAP_PX = 6.0  # a click this close to a match end (image pixels, KITTI; wider images scale it) picks that match
 RING_PX = 5.0  # the clicked point's ring and its partner's (KITTI; wider images scale it)
-
-
-@dataclass
-class PairFs:
-    """What a click needs of one pair: the F's (ground truth among them, named ``gt``), their colours, the
-    image sizes (w, h) and the matches. F: (n, 3, 3); x_a, x_b: (N, 2) in each image's pixels."""
-
-    names: list[str]
-    F: np.ndarray
-    size_a: tuple[int, int]
-    size_b: tuple[int, int]
-    x_a: np.ndarray
-    x_b: np.ndarray
-    colors: dict[str, tuple[int, int, int]] = field(default_factory=dict)
-
-    def __post_init__(self):
-        self.F = np.asarray(self.F, float).reshape(-1, 3, 3)
-        self.x_a = np.asarray(self.x_a, float).reshape(-1, 2)
-        self.x_b = np.asarray(self.x_b, float).reshape(-1, 2)
-        self.colors = self.colors or L.estimator_colors(self.names)
-
-    def size(self, view: str) -> tuple[int, int]:
-        return self.size_a if view == "a" else self.size_b
-
-    def scale(self) -> float:
-        return max(1.0, self.size_a[0] / 1241.0)
 
 
 @dataclass

@@ -66,7 +66,7 @@ def deep_variants(specs: list[str]) -> dict[str, dict]:
     from fviz.estimators.deep import bundled_weights
     from fviz.estimators.registry import display_names
     from fviz.models.model import parse_variant
-    from fviz.train.checkpoint import read_checkpoint
+    from fviz.models.weights import read_checkpoint
 
     out = {}
     for name, spec in zip(display_names(specs), specs):

@@ -56,7 +56,7 @@ def fail_rule(metric: str, threshold: float | None = None) -> FailRule | None:
     rule = FAIL_RULES.get(metric)
     if threshold is None:
         return rule
-    from fviz.record.layout import metric_unit
+    from fviz.evaluate import metric_unit
 
     return FailRule(threshold, metric in HIGHER_IS_BETTER, rule.unit if rule else metric_unit(metric))
 

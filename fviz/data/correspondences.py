@@ -513,8 +513,8 @@ def fit_gt(c: Correspondences, pair) -> tuple[np.ndarray, float, str]:
     """F_gt of ground-truth correspondences -> (F, their median SED to it (px), the note that says so): the
     authors' model F when one lies beside the file (:func:`model_file`), else a Sampson-refined fit
     (:func:`refined_fit`). Labelled points on one plane do not determine F: the note says so."""
-    from fviz.diagnose import homography_fraction
     from fviz.geometry import symmetric_epipolar_distance
+    from fviz.geometry.homography import homography_fraction
 
     if len(c.x_a) < MIN_GT:
         raise FvizError(f"--gt-matches {c.path}: {len(c.x_a)} correspondences, at least {MIN_GT} needed to fit F_gt")

@@ -101,6 +101,8 @@ from typing import Iterable, Sequence
 
 import numpy as np
 
+from fviz.evaluate import metric_unit  # noqa: F401 (re-exported)
+
 TIMELINE = "pair"
 TRAIN_TIMELINE = "step"  # train.rrd and log_training_step: the optimizer step
 RANK_TIMELINE = "rank"  # triage.rrd: the worst pair first
@@ -242,11 +244,6 @@ METRIC_TITLES = {
     "nsgd": "NSGD (FM-Bench, share of the diagonal)", "epipole_err_deg": "epipole error (deg)",
     "inlier_ratio": "inlier ratio (share of the matches)", "n_inliers": "inliers (matches)",
 }
-
-
-def metric_unit(key: str) -> str:
-    """The unit a metric is in ("px", "deg" or "")."""
-    return "px" if key.startswith(("sed", "sampson")) else "deg" if key.endswith("_deg") else ""
 
 
 def metric_title(key: str) -> str:

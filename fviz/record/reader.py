@@ -535,12 +535,12 @@ def blueprint_tabs(path: str | Path) -> dict[str, list[str]]:
 
 
 def click_pairs(path: str | Path) -> dict[int, Any]:
-    """{pair index: :class:`fviz.interactive.PairFs`} of every pair whose images, F's (``pair/fundamental``) and
+    """{pair index: :class:`fviz.record.clickable.PairFs`} of every pair whose images, F's (``pair/fundamental``) and
     matches the recording holds (the ground truth's matches, else the first estimator's); {} for a recording
     written before fviz logged the F's, or without images (eval without --full)."""
     import numpy as np
 
-    from fviz.interactive import PairFs
+    from fviz.record.clickable import PairFs
 
     reader = open_rrd(path)
     tl = L.TIMELINE
