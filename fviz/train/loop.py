@@ -504,20 +504,26 @@ def constant_sed_px(targets: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor
 
 
 class TargetMean:
-    """The running mean of the training targets the loop has stepped on (unit Frobenius, signs aligned with the
-    first target): the constant F of the training data, what a network that ignores the images converges to.
-    Summed on the training device (no host sync per step); it travels in the checkpoint (:meth:`state`)."""
+    """The running mean of the training targets the loop has stepped on, unit Frobenius, signs aligned with
+    ``ref`` (the training set's first target, as :func:`fviz.estimators.baselines.mean_fundamental` aligns
+    with the first of its matrices): the constant F of the training data, what a network that ignores the
+    images converges to.  Summed on the training device (no host sync per step); it travels in the
+    checkpoint (:meth:`state`)."""
 
-    def __init__(self, state: dict | None = None):
+    def __init__(self, state: dict | None = None, ref: torch.Tensor | None = None):
         self.ref = self.sum = self._ref = None
         self.n = 0
+        if ref is not None:
+            F = ref.detach().double().cpu().flatten()
+            self.ref = F / F.norm().clamp_min(1e-300)
         if state and state.get("n"):
             self.ref = torch.tensor(state["ref"], dtype=torch.float64)
             self.sum = torch.tensor(state["sum"], dtype=torch.float64)
             self.n = int(state["n"])
 
     def add(self, F_t: torch.Tensor) -> None:
-        F = F_t.detach().flatten(1).float()
+        F = F_t.detach().flatten(1)
+        F = F.float() if F.device.type == "mps" else F.double()  # MPS has no float64
         F = F / F.norm(dim=1, keepdim=True).clamp_min(1e-30)
         if self.ref is None:
             self.ref = F[0].double().cpu()
@@ -699,7 +705,8 @@ def train(
     point_rng = torch.Generator().manual_seed(t.seed * 7919 + step + rank)  # virtual correspondences of sed_loss
     best = [min((h[t.keep_best] for h in history if t.keep_best in h), default=math.inf) if t.keep_best else math.inf]
     last_grad: list[Any] = [None]
-    target_mean = TargetMean(mean_state)  # the constant F of the training pairs stepped on (validation's mean_f)
+    # the constant F of the training pairs stepped on (validation's mean_f), signs aligned with the first pair's
+    target_mean = TargetMean(mean_state, ref=None if mean_state else train_ds[[0]][2][0])
 
     def flush() -> None:
         """Bring the pending losses to the host (one sync), stop on a non-finite one, log them."""
