@@ -213,8 +213,9 @@ class _NaNAfter(TensorPairs):
 def test_nan_loss_stops_and_keeps_the_last_good_checkpoint(tmp_path):
     recipe = _recipe(tmp_path, epochs=10, checkpoint_every=2, val_every=0)
     recipe.train.batch_size = 2
-    # 6 good batches: the REC head's translation rescaling reads one before the first step, then steps 1-5
-    data = (_NaNAfter(_tiny_pairs(8), after=6), _tiny_pairs(2, seed=1))
+    # 7 good reads: the REC head's translation rescaling and the training mean F's reference (the first pair) read
+    # one each before the first step, then steps 1-5
+    data = (_NaNAfter(_tiny_pairs(8), after=7), _tiny_pairs(2, seed=1))
     with pytest.raises(TrainingDiverged, match=r"loss became nan at step 6 .*last good checkpoint .*step 4") as info:
         train(recipe, datasets=data, record=True)
     assert isinstance(info.value, FvizError) and info.value.step == 6

@@ -26,12 +26,21 @@ these points are exact too; a fixed generator makes them identical across valida
 - ``epi_abs``: mean |x_b^T F x_a| with F scaled to unit Frobenius norm, in model-input pixels;
 - ``epi_sqr``: mean (x_b^T F x_a)^2, same F and points;
 - ``sed_px``: median symmetric epipolar distance (pixels of the model input);
-- ``f_dist``: mean min ||F -+ F_t|| of unit-norm matrices; ``loss``: the training loss.
+- ``f_dist``: mean min ||F -+ F_t|| of unit-norm matrices; ``loss``: the training loss;
+- beside the network, two constants that read no image, on the same points: ``mean_f_sed_px``, the median SED of
+  the mean F of the training pairs stepped on so far (:class:`TargetMean`, travels in ``last.pt``), and
+  ``ahead_sed_px``, of straight-ahead motion (:func:`straight_ahead_input_f`); ``mean_f_p`` / ``ahead_p``:
+  Wilcoxon's two-sided p of the per-pair median SEDs of the network against each.  The network beats a constant
+  when its median SED is lower and p < 0.05 (:func:`beats`); unless it beats both, each validation's line, the
+  end of ``fviz train`` and ``train.rrd`` (``val/verdict``) say "the model is no better than the constant"
+  (:func:`versus_constants`).  Measured: recipes/synthetic_small.toml ends at 1.641 px against 1.642 / 1.642 px
+  (no better); recipes/synthetic_bundled.toml at 1.785 px against 3.014 / 2.672 px (H200, its recipe header).
 
 Outputs in ``train.out_dir``: ``last.pt`` (full checkpoint: model, optimizer, recipe, metrics, step,
 code version, the curves; rewritten atomically every ``checkpoint_every`` steps and at each
 validation), ``model.pt`` (weights only, ``export_dtype``, written at the end: the file to ship), and
-``train.rrd`` (Rerun recording of the curves ``train/*`` and ``val/*`` on the ``step`` timeline, and of the
+``train.rrd`` (Rerun recording of the curves ``train/*`` and ``val/*`` on the ``step`` timeline, each validation's
+verdict against the constants (``val/verdict``), and of the
 network on ``train.watch_pairs`` fixed validation pairs every ``train.watch_every`` steps or at each checkpoint:
 its epipolar lines beside the ground truth's, through :func:`fviz.log_training_step`;
 rewritten complete, footer included, under a temporary name and renamed into place at each
