@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from fviz.data.kitti import open_dataset
-from fviz.train.heldout import PAIRED_METRICS, heldout_report
+from fviz.train.heldout import NO_BETTER, PAIRED_METRICS, heldout_report
 from fviz.train.recipe import Recipe
 
 WEIGHTS = Path(__file__).resolve().parents[1] / "assets" / "fviz-deep.pt"
@@ -52,6 +52,10 @@ def test_report_names_what_the_drives_chose(report):
     assert set(report["paired"]) == {"constant", "mean_f"}
     for other in ("constant", "mean_f"):
         assert set(report["paired"][other]) == set(PAIRED_METRICS)
+        assert report["beats"][other] == (report["paired"][other]["pose_err_deg"]["verdict"] == "model better")
+    # one line beside both constants: no better than the constant unless the paired tests find it better than both
+    assert report["verdict"].startswith(NO_BETTER) == (not all(report["beats"].values()))
+    assert "for straight-ahead motion" in report["verdict"] and "for the training pairs' mean F" in report["verdict"]
 
 
 def test_pose_auc_is_the_closed_form_of_the_per_pair_errors(report):

@@ -4,6 +4,7 @@ recipes are validated key by key, the CLI command runs."""
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -101,14 +102,38 @@ def test_a_few_steps_lower_the_loss(tmp_path):
     assert res.weights is not None and res.weights.is_file() and res.checkpoint.is_file()
 
 
+def _etr_pairs(n: int, seed: int = 0) -> TensorPairs:
+    """Targets ETR can learn: random rank-2 F with F33 = 1 in the loss's conditioned frame (forward motions have
+    F33 ~ 0 there, so their ETR targets are in the thousands and 8 steps barely move the loss), mapped to pixels."""
+    from fviz.geometry import enforce_rank2, normalize
+    from fviz.models.heads import conditioning_matrix
+
+    g = np.random.default_rng(seed)
+    H, W = TINY_MODEL["input_size"]
+    T = conditioning_matrix((H, W), dtype=torch.float64).numpy()
+    Fs = []
+    for _ in range(n):
+        F = g.normal(0, 0.5, (3, 3))
+        F[2, 2] = 1.0
+        Fs.append(normalize(T.T @ enforce_rank2(F) @ T, "etr"))
+    imgs = torch.from_numpy(g.random((2, n, 1, H, W)).astype(np.float32))
+    return TensorPairs(imgs[0], imgs[1], torch.from_numpy(np.stack(Fs)).float())
+
+
 @pytest.mark.parametrize("head", ["base", "rec", "epi"])
 @pytest.mark.parametrize("norm", ["etr", "fbn", "abs"])
 def test_every_head_and_norm_trains(tmp_path, head, norm):
+    """8 steps on one fixed batch of 4 pairs (the training set is that batch): the loss falls by more than 15 %
+    for every head and normalization (measured: to 1-71 % of its start), and validation gives finite figures."""
     arch, pos = ("single", False) if norm == "abs" else ("siamese", norm == "etr")
     variant = f"{arch}-{head}{'-pos' if pos else ''}-{norm}"
-    recipe = _recipe(tmp_path, variant=variant, max_steps=3, epochs=2)
-    res = train(recipe, datasets=(_tiny_pairs(8, norm), _tiny_pairs(4, norm, seed=1)), record=False)
-    assert res.step == 3 and all(math.isfinite(v) for v in res.losses) and math.isfinite(res.metrics["sed_px"])
+    recipe = _recipe(tmp_path, variant=variant, max_steps=8, epochs=8, val_every=0)
+    data = (_etr_pairs(4), _etr_pairs(4, seed=1)) if norm == "etr" else (_tiny_pairs(4, norm), _tiny_pairs(4, norm, seed=1))
+    res = train(recipe, datasets=data, record=False, held_out=False)
+    assert res.step == 8 and all(math.isfinite(v) for v in res.losses)
+    first, last = np.mean(res.losses[:2]), np.mean(res.losses[-2:])
+    assert last < 0.85 * first, (variant, res.losses)
+    assert math.isfinite(res.metrics["sed_px"]) and math.isfinite(res.metrics["ahead_sed_px"])
 
 
 def test_checkpoint_round_trip_same_outputs(tmp_path):
@@ -188,8 +213,9 @@ class _NaNAfter(TensorPairs):
 def test_nan_loss_stops_and_keeps_the_last_good_checkpoint(tmp_path):
     recipe = _recipe(tmp_path, epochs=10, checkpoint_every=2, val_every=0)
     recipe.train.batch_size = 2
-    # 6 good batches: the REC head's translation rescaling reads one before the first step, then steps 1-5
-    data = (_NaNAfter(_tiny_pairs(8), after=6), _tiny_pairs(2, seed=1))
+    # 7 good reads: the REC head's translation rescaling and the training mean F's reference (the first pair) read
+    # one each before the first step, then steps 1-5
+    data = (_NaNAfter(_tiny_pairs(8), after=7), _tiny_pairs(2, seed=1))
     with pytest.raises(TrainingDiverged, match=r"loss became nan at step 6 .*last good checkpoint .*step 4") as info:
         train(recipe, datasets=data, record=True)
     assert isinstance(info.value, FvizError) and info.value.step == 6
@@ -433,6 +459,10 @@ def test_cli_train_command(tmp_path, monkeypatch):
     runner = CliRunner()
     res = runner.invoke(app, ["train", str(recipe), "--set", "train.max_steps=2"])
     assert res.exit_code == 0, res.output
+    # the end of training sets the model beside both constants, in one line (2 steps: no better than them)
+    end = " ".join(res.output.split("done:", 1)[1].split())  # what follows the last step, unwrapped
+    assert re.search(r"the model is no better than the constant: validation median SED [\d.]+ px vs [\d.]+ px for the "
+                     r"training pairs' mean F \(p [\d.e-]+\) and [\d.]+ px for straight-ahead motion", end), res.output
     assert (tmp_path / "out" / "siamese-rec-pos-fbn" / "model.pt").is_file()
     res = runner.invoke(app, ["train", str(recipe), "--set", "train.max_steps=3", "--resume"])
     assert res.exit_code == 0, res.output

@@ -83,9 +83,14 @@ def train(
         raise FvizError(worker_error_line(str(exc))) from None
     if not main:
         return
+    from fviz.train.loop import VALIDATION_FIGURES, versus_constants
+
     m = result.metrics
-    summary = "  ".join(f"{k} {v:.4g}" for k, v in m.items())
+    summary = "  ".join(f"{k} {v:.4g}" for k, v in m.items() if k in VALIDATION_FIGURES)
     console.print(f"done: {result.step} steps in {result.seconds:.0f} s; held-out validation: {summary}")
+    verdict = versus_constants(m)
+    if verdict:
+        console.print(verdict, highlight=False, soft_wrap=True)
     console.print(f"checkpoint {result.checkpoint}\nweights    {result.weights}\ncurves     {result.recording}")
     report = result.out_dir / "heldout.json"
     if report.is_file():
@@ -104,6 +109,8 @@ def train(
             console.print(f"held-out    model vs {other}, pose error: {t.get('wins')} wins, {t.get('losses')} losses, "
                           f"{t.get('ties')} ties, Wilcoxon p {t.get('wilcoxon_p', float('nan')):.3g}: {t.get('verdict')}",
                           highlight=False)
+        if figures.get("verdict"):
+            console.print(f"held-out    {figures['verdict']}", highlight=False, soft_wrap=True)
         console.print(f"held-out    {report}")
 
 

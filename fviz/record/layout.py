@@ -660,7 +660,8 @@ def watch_colors() -> dict[str, tuple[int, int, int]]:
 # train.rrd's curves tab: (plot title, its series); each series' name and colour in TRAIN_SERIES.
 TRAIN_PLOTS = (
     ("loss: training batches vs held-out validation pairs", ("train/loss", "val/loss")),
-    ("validation median SED (px) vs a constant F (mean target)", ("val/sed_px", "val/constant_sed_px")),
+    ("validation median SED (px): network vs the constants (training pairs' mean F, straight ahead)",
+     ("val/sed_px", "val/mean_f_sed_px", "val/ahead_sed_px")),
     ("validation |x_b^T F x_a| (unit F): mean, mean square", ("val/epi_abs", "val/epi_sqr")),
     ("validation F distance", ("val/f_dist",)),
     ("learning rate", ("train/lr",)),
@@ -668,11 +669,17 @@ TRAIN_PLOTS = (
 )
 TRAIN_SERIES = {
     "train/loss": ("training loss", PALETTE[0]), "val/loss": ("validation loss", PALETTE[1]),
-    "val/sed_px": ("network", PALETTE[1]), "val/constant_sed_px": ("constant F", GT_COLOR),
+    "val/sed_px": ("network", PALETTE[1]), "val/mean_f_sed_px": ("mean F of the training pairs", GT_COLOR),
+    "val/ahead_sed_px": ("straight ahead", PALETTE[3]), "val/constant_sed_px": ("constant F", GT_COLOR),
     "val/epi_abs": ("mean", PALETTE[1]), "val/epi_sqr": ("mean square", PALETTE[2]),
     "val/f_dist": ("F distance", PALETTE[1]), "train/lr": ("learning rate", PALETTE[0]),
     "train/grad_norm": ("gradient norm", PALETTE[0]),
 }
+
+
+# each validation's line: the network beside both constants ("the model is no better than the constant: ..."),
+# a TextLog on ``step`` (fviz.train.loop.versus_constants), shown under the curves
+TRAIN_VERDICT = "val/verdict"
 
 
 def training_style(key: str) -> dict:
@@ -684,8 +691,8 @@ def training_style(key: str) -> dict:
 def training_blueprint(names: Sequence[str], sizes: Sequence[tuple[tuple[int, int], tuple[int, int]]], curves: bool = False):
     """train.rrd's layout: one tab per watched pair (image a above b, the network's lines and epipole beside the
     ground truth's, keypoints by residual; its SED over ``step`` below), and with ``curves`` a tab of the
-    training and validation curves (TRAIN_PLOTS: the two losses in one plot, the validation SED beside a
-    constant F's, legends on). The time panel opens on ``step``: scrubbing it shows the lines converge."""
+    training and validation curves (TRAIN_PLOTS: the two losses in one plot, the validation SED beside the two
+    constants', legends on) above each validation's verdict against the constants (TRAIN_VERDICT). The time panel opens on ``step``: scrubbing it shows the lines converge."""
     import rerun.blueprint as rrb
     from rerun.blueprint.archetypes import PlotBackground
 
@@ -698,8 +705,10 @@ def training_blueprint(names: Sequence[str], sizes: Sequence[tuple[tuple[int, in
         plot = rrb.TimeSeriesView(origin=watch(name, "sed_px"), name=f"{name}: median SED (px)", background=dark)
         tabs.append(rrb.Vertical(images, plot, row_shares=[3, 1], name=f"pair {name}"))
     if curves:
-        tabs.append(rrb.Grid(*(rrb.TimeSeriesView(origin="/", contents=[f"+ {k}" for k in keys], name=title, background=dark)
-                               for title, keys in TRAIN_PLOTS), name="curves"))
+        grid = rrb.Grid(*(rrb.TimeSeriesView(origin="/", contents=[f"+ {k}" for k in keys], name=title, background=dark)
+                          for title, keys in TRAIN_PLOTS))
+        verdicts = rrb.TextLogView(origin=TRAIN_VERDICT, name="validation vs the constants")
+        tabs.append(rrb.Vertical(grid, verdicts, row_shares=[5, 1], name="curves"))
     root = rrb.Tabs(*tabs) if tabs else rrb.Tabs(rrb.TextDocumentView(origin="/", name="empty"))
     time_panel = rrb.TimePanel(state="expanded", timeline=TRAIN_TIMELINE, play_state="paused", fps=4.0)
     return rrb.Blueprint(root, time_panel, collapse_panels=False)

@@ -20,7 +20,10 @@ the eval's ``pose_err_deg`` over all pairs, :func:`fviz.geometry.pose_auc`: a pa
 :func:`heldout_report` (``heldout.json`` of ``fviz train``) sets the model beside two constants that read no
 image, the straight-ahead F (``constant``) and the mean ground-truth F of the recipe's training pairs (``mean_f``),
 and gives the paired test of the model against each (:func:`paired_test`: ``fviz compare``'s wins, losses,
-ties and Wilcoxon signed-rank test) on ``pose_err_deg``, ``sed_median`` and ``rot_err_deg``.
+ties and Wilcoxon signed-rank test) on ``pose_err_deg``, ``sed_median`` and ``rot_err_deg``.  ``beats``: whether
+the paired pose-error test finds the model better than each constant (:func:`beats_constant`); ``verdict``: one
+line, "the model is no better than the constant: ..." unless it beats both, every figure beside both constants'
+(:func:`heldout_verdict`).
 """
 
 from __future__ import annotations
@@ -268,4 +271,40 @@ def heldout_report(recipe, weights) -> dict[str, Any]:
                           for name, _ in estimators}
     for other in [name for name, _ in estimators[1:]]:
         report["paired"][other] = {m: paired_test(rows["model"], rows[other], m, ("model", other)) for m in PAIRED_METRICS}
+    report["beats"] = {other: beats_constant(report, other) for other in report["paired"]}
+    report["verdict"] = heldout_verdict(report)
     return report
+
+
+CONSTANT_NAMES = {"constant": "straight-ahead motion", "mean_f": "the training pairs' mean F"}
+NO_BETTER = "the model is no better than the constant"  # as fviz.train.loop.NO_BETTER
+
+
+def beats_constant(report: dict[str, Any], other: str, metric: str = "pose_err_deg") -> bool:
+    """Whether the held-out report's paired test finds the model better than the constant ``other`` on ``metric``
+    (Wilcoxon p < 0.05, the model's errors lower): where it does not, the model is no better than the constant."""
+    return (report.get("paired", {}).get(other, {}).get(metric, {}).get("verdict") == "model better")
+
+
+def heldout_verdict(report: dict[str, Any]) -> str:
+    """One line: "the model beats both constants: ..." or "the model is no better than the constant: held-out 04, 10:
+    pose AUC@5/10/20 a/b/c, median temporal SED x px vs ... for straight-ahead motion (paired pose error: ...) and
+    ... for the training pairs' mean F (...)", every figure beside the model's; "" without constants."""
+    others = [o for o in ("constant", "mean_f") if o in report.get("paired", {}) and o in report]
+    if "model" not in report or not others:
+        return ""
+
+    def figures(name: str) -> str:
+        f = report[name]
+        auc = "/".join(f"{v:.3g}" for v in f.get("pose_auc", {}).values())
+        return f"pose AUC@5/10/20 {auc}, temporal median SED {f.get('temporal_sed_median', math.nan):.3g} px"
+
+    def tested(o: str) -> str:
+        t = report["paired"][o].get("pose_err_deg", {})
+        return (f"paired pose error {t.get('wins')} wins, {t.get('losses')} losses, "
+                f"p {t.get('wilcoxon_p', math.nan):.2g}: {t.get('verdict')}")
+
+    lost = [o for o in others if not beats_constant(report, o)]
+    head = NO_BETTER if lost else f"the model beats {'both constants' if len(others) > 1 else 'the constant'}"
+    beside = " and ".join(f"{figures(o)} for {CONSTANT_NAMES[o]} ({tested(o)})" for o in others)
+    return f"{head}: held-out {', '.join(report.get('sequences', []))}: model {figures('model')} vs {beside}"

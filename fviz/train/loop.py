@@ -26,12 +26,21 @@ these points are exact too; a fixed generator makes them identical across valida
 - ``epi_abs``: mean |x_b^T F x_a| with F scaled to unit Frobenius norm, in model-input pixels;
 - ``epi_sqr``: mean (x_b^T F x_a)^2, same F and points;
 - ``sed_px``: median symmetric epipolar distance (pixels of the model input);
-- ``f_dist``: mean min ||F -+ F_t|| of unit-norm matrices; ``loss``: the training loss.
+- ``f_dist``: mean min ||F -+ F_t|| of unit-norm matrices; ``loss``: the training loss;
+- beside the network, two constants that read no image, on the same points: ``mean_f_sed_px``, the median SED of
+  the mean F of the training pairs stepped on so far (:class:`TargetMean`, travels in ``last.pt``), and
+  ``ahead_sed_px``, of straight-ahead motion (:func:`straight_ahead_input_f`); ``mean_f_p`` / ``ahead_p``:
+  Wilcoxon's two-sided p of the per-pair median SEDs of the network against each.  The network beats a constant
+  when its median SED is lower and p < 0.05 (:func:`beats`); unless it beats both, each validation's line, the
+  end of ``fviz train`` and ``train.rrd`` (``val/verdict``) say "the model is no better than the constant"
+  (:func:`versus_constants`).  Measured: recipes/synthetic_small.toml ends at 1.641 px against 1.642 / 1.642 px
+  (no better); recipes/synthetic_bundled.toml at 1.785 px against 3.014 / 2.672 px (H200, its recipe header).
 
 Outputs in ``train.out_dir``: ``last.pt`` (full checkpoint: model, optimizer, recipe, metrics, step,
 code version, the curves; rewritten atomically every ``checkpoint_every`` steps and at each
 validation), ``model.pt`` (weights only, ``export_dtype``, written at the end: the file to ship), and
-``train.rrd`` (Rerun recording of the curves ``train/*`` and ``val/*`` on the ``step`` timeline, and of the
+``train.rrd`` (Rerun recording of the curves ``train/*`` and ``val/*`` on the ``step`` timeline, each validation's
+verdict against the constants (``val/verdict``), and of the
 network on ``train.watch_pairs`` fixed validation pairs every ``train.watch_every`` steps or at each checkpoint:
 its epipolar lines beside the ground truth's, through :func:`fviz.log_training_step`;
 rewritten complete, footer included, under a temporary name and renamed into place at each
@@ -287,7 +296,8 @@ class _Curves:
     run rewrites the same ``train.rrd`` with the whole history.
     """
 
-    def __init__(self, path: Path, recording_id: str, state: dict | None = None, watch: list | None = None):
+    def __init__(self, path: Path, recording_id: str, state: dict | None = None, watch: list | None = None,
+                 notes: list | None = None):
         import rerun as rr
 
         self.rr = rr
@@ -300,6 +310,8 @@ class _Curves:
         self.pairs: list = []
         self.frames: list[tuple[int, list]] = [(int(s), F) for s, F in (watch or [])]
         self.watch_seconds = 0.0  # spent on them: forward passes and logging
+        # each validation's line setting the network beside the constants (versus_constants), a TextLog on VERDICT
+        self.notes: list[tuple[int, str]] = [(int(s), str(t)) for s, t in (notes or [])]
         path.with_name(path.name + ".part").unlink(missing_ok=True)  # left by fviz versions that streamed into it
 
     def log(self, step: int, values: dict[str, float]) -> None:
@@ -311,6 +323,10 @@ class _Curves:
 
     def state(self) -> dict[str, tuple[list[int], list[float]]]:
         return self.series
+
+    def note(self, step: int, text: str) -> None:
+        """Keep a validation's verdict line (one per step: the last counts)."""
+        self.notes = [n for n in self.notes if n[0] != step] + [(int(step), text)]
 
     def watch(self, step: int, F_pred: torch.Tensor) -> None:
         """Keep the network's F (B, 3, 3) on the watched pairs at ``step`` (one frame; a step's last one counts)."""
@@ -332,6 +348,12 @@ class _Curves:
             for key, (steps, vals) in self.series.items():
                 rec.log(key, rr.SeriesLines(**training_style(key)), static=True)
                 rec.send_columns(key, indexes=[rr.TimeColumn("step", sequence=steps)], columns=rr.Scalars.columns(scalars=vals))
+            if self.notes:
+                from fviz.record.layout import TRAIN_TIMELINE, TRAIN_VERDICT
+
+                for step, text in self.notes:
+                    rec.set_time(TRAIN_TIMELINE, sequence=step)
+                    rec.log(TRAIN_VERDICT, rr.TextLog(text, level="WARN" if text.startswith(NO_BETTER) else "INFO"))
             if self.pairs:
                 from fviz.api import log_training_step
 
@@ -344,10 +366,12 @@ class _Curves:
 
 
 class _Quiet:
+    notes: list = []
+
     def log(self, *a, **k):
         pass
 
-    snapshot = close = log
+    snapshot = close = note = log
 
     def state(self) -> dict:
         return {}
@@ -374,16 +398,28 @@ def _dist_setup(device_name: str) -> tuple[int, int, torch.device]:
 # ----------------------------------------------------------------------------------------------- the loop
 
 
+VALIDATION_FIGURES = ("loss", "epi_abs", "epi_sqr", "sed_px", "f_dist")  # the network's; then each constant's
+NO_BETTER = "the model is no better than the constant"
+CONSTANTS = ("mean_f", "ahead")  # the constants every validation sets the network beside (CONSTANT_NAMES: how they read)
+CONSTANT_NAMES = {"mean_f": "the training pairs' mean F", "ahead": "straight-ahead motion"}
+BEATS_P = 0.05  # the network beats a constant when Wilcoxon's test of the per-pair median SEDs finds it lower at p < 0.05
+
+
 @torch.no_grad()
-def validate(model, loader, recipe: Recipe, device: torch.device, amp_dtype: torch.dtype | None) -> dict[str, float]:
-    """The validation metrics of ``model`` over ``loader`` (see the module docstring)."""
+def validate(model, loader, recipe: Recipe, device: torch.device, amp_dtype: torch.dtype | None,
+             mean_f: torch.Tensor | None = None) -> dict[str, float]:
+    """The validation metrics of ``model`` over ``loader`` (see the module docstring), beside two constants that
+    read no image on the same points: ``mean_f`` (the training pairs' mean F, :class:`TargetMean`; without it the
+    validation targets' own mean, an oracle) and straight-ahead motion (:func:`straight_ahead_input_f`).
+    ``{c}_sed_px``: a constant's median SED; ``{c}_p``: Wilcoxon's two-sided p of the per-pair median SEDs of the
+    network against it (:func:`versus_constants` reads them)."""
     norm = recipe.model.variant.rsplit("-", 1)[1]
     t = recipe.train
     was_training = model.training
     model.eval()
     gen = torch.Generator().manual_seed(12345)
     loss_sum, n_pairs, f_sum = 0.0, 0, 0.0
-    abs_all, sqr_all, sed_all, targets = [], [], [], []  # targets: (F_t, xa, xb) for the constant's SED
+    abs_all, sqr_all, sed_all, targets = [], [], [], []  # targets: (F_t, xa, xb) for the constants' SED
     try:
         for img_a, img_b, F_t in loader:
             img_a, img_b, F_t = img_a.to(device), img_b.to(device), F_t.to(device)
@@ -396,7 +432,7 @@ def validate(model, loader, recipe: Recipe, device: torch.device, amp_dtype: tor
             m = epipolar_metrics(F_pred, xa, xb)
             abs_all.append(m["abs"].flatten().cpu())
             sqr_all.append(m["abs"].square().flatten().cpu())
-            sed_all.append(m["sed"].flatten().cpu())
+            sed_all.append(m["sed"].cpu())
             targets.append((F_t.double().cpu(), xa.cpu(), xb.cpu()))
             f_sum += float(f_distance_t(F_pred, F_t).sum())
     finally:
@@ -404,30 +440,141 @@ def validate(model, loader, recipe: Recipe, device: torch.device, amp_dtype: tor
     if n_pairs == 0:
         return {}
     sed = torch.cat(sed_all)
-    sed = sed[torch.isfinite(sed)]
-    return {
+    out = {
         "loss": loss_sum / n_pairs,
         "epi_abs": float(torch.cat(abs_all).mean()),
         "epi_sqr": float(torch.cat(sqr_all).mean()),
-        "sed_px": float(sed.median()) if sed.numel() else float("nan"),
+        "sed_px": _median(sed),
         "f_dist": f_sum / n_pairs,
-        "constant_sed_px": constant_sed_px(targets),
     }
+    constants = {"mean_f": mean_f if mean_f is not None else mean_target(torch.cat([t[0] for t in targets])),
+                 "ahead": straight_ahead_input_f(recipe.input_hw)}
+    for name, F_c in constants.items():
+        sed_c = constant_sed(F_c, targets)
+        out[f"{name}_sed_px"] = _median(sed_c)
+        out[f"{name}_p"] = _paired_p(sed, sed_c)
+    return out
+
+
+def _median(sed: torch.Tensor) -> float:
+    sed = sed.flatten()
+    sed = sed[torch.isfinite(sed)]
+    return float(sed.median()) if sed.numel() else float("nan")
+
+
+def _paired_p(sed: torch.Tensor, sed_c: torch.Tensor) -> float:
+    """Wilcoxon's two-sided p of the per-pair median SEDs (B, n) x 2 (:func:`fviz.compare.wilcoxon_signed_rank`)."""
+    from fviz.compare import wilcoxon_signed_rank
+
+    d = (sed.nanmedian(dim=1).values - sed_c.nanmedian(dim=1).values).numpy()
+    return float(wilcoxon_signed_rank(d).p)
+
+
+def mean_target(F_t: torch.Tensor) -> torch.Tensor:
+    """The mean of targets (B, 3, 3) up to scale and sign: unit Frobenius, signs aligned with the first, made rank 2."""
+    F = F_t.double().flatten(1)
+    F = F / F.norm(dim=1, keepdim=True).clamp_min(1e-300)
+    F = F * torch.where(F @ F[0] < 0, -1.0, 1.0)[:, None].to(F)
+    return _rank2(F.mean(0).reshape(3, 3))
+
+
+def _rank2(F: torch.Tensor) -> torch.Tensor:
+    U, S, Vh = torch.linalg.svd(F.double())
+    F = U @ torch.diag(torch.stack([S[0], S[1], torch.zeros_like(S[2])])) @ Vh
+    return F / F.norm().clamp_min(1e-300)
+
+
+def straight_ahead_input_f(input_hw: tuple[int, int]) -> torch.Tensor:
+    """F of pure forward motion (R = I, t = z) in model-input pixels, for KITTI's camera scaled to the input (the
+    synthetic scenes' camera, :func:`fviz.data.synthetic.intrinsics`): K^-T [z]x K^-1 ~ [(cx, cy, 1)]x, lines
+    through the principal point.  Unit Frobenius, float64."""
+    H, W = int(input_hw[0]), int(input_hw[1])
+    try:
+        from fviz.data.synthetic import intrinsics
+
+        K = intrinsics(W, H)
+        cx, cy = float(K[0, 2]), float(K[1, 2])
+    except ImportError:  # the image centre
+        cx, cy = (W - 1) / 2, (H - 1) / 2
+    F = torch.tensor([[0.0, -1.0, cy], [1.0, 0.0, -cx], [-cy, cx, 0.0]], dtype=torch.float64)
+    return F / F.norm()
+
+
+def constant_sed(F_c: torch.Tensor, targets: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]]) -> torch.Tensor:
+    """The SED (B, n) of one constant F on the validation points; ``targets``: per batch (F_t, xa, xb (B, n, 3))."""
+    F_c = F_c.double().cpu()
+    return torch.cat([epipolar_metrics(F_c.expand(len(xa), 3, 3), xa.double(), xb.double())["sed"] for _, xa, xb in targets])
 
 
 def constant_sed_px(targets: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]]) -> float:
-    """The median SED on the validation points of one constant F, the mean of the pairs' targets (unit Frobenius,
-    signs aligned, rank 2): what a network that ignores the images reaches; its line on train.rrd's plot of
-    ``sed_px``. ``targets``: per batch (F_t (B, 3, 3), xa, xb (B, n, 3))."""
-    F_t = torch.cat([t[0] for t in targets]).flatten(1)
-    F_t = F_t / F_t.norm(dim=1, keepdim=True).clamp_min(1e-300)
-    F_t = F_t * torch.where(F_t @ F_t[0] < 0, -1.0, 1.0)[:, None].to(F_t)
-    U, S, Vh = torch.linalg.svd(F_t.mean(0).reshape(3, 3))
-    F_c = U @ torch.diag(torch.stack([S[0], S[1], torch.zeros_like(S[2])])) @ Vh
-    sed = torch.cat([epipolar_metrics(F_c.expand(len(xa), 3, 3), xa.double(), xb.double())["sed"].flatten()
-                     for _, xa, xb in targets])
-    sed = sed[torch.isfinite(sed)]
-    return float(sed.median()) if sed.numel() else float("nan")
+    """The median SED on the validation points of the validation targets' own mean F (an oracle: it has seen the
+    labels). ``targets``: per batch (F_t (B, 3, 3), xa, xb (B, n, 3))."""
+    return _median(constant_sed(mean_target(torch.cat([t[0] for t in targets])), targets))
+
+
+class TargetMean:
+    """The running mean of the training targets the loop has stepped on, unit Frobenius, signs aligned with
+    ``ref`` (the training set's first target, as :func:`fviz.estimators.baselines.mean_fundamental` aligns
+    with the first of its matrices): the constant F of the training data, what a network that ignores the
+    images converges to.  Summed on the training device (no host sync per step); it travels in the
+    checkpoint (:meth:`state`)."""
+
+    def __init__(self, state: dict | None = None, ref: torch.Tensor | None = None):
+        self.ref = self.sum = self._ref = None
+        self.n = 0
+        if ref is not None:
+            F = ref.detach().double().cpu().flatten()
+            self.ref = F / F.norm().clamp_min(1e-300)
+        if state and state.get("n"):
+            self.ref = torch.tensor(state["ref"], dtype=torch.float64)
+            self.sum = torch.tensor(state["sum"], dtype=torch.float64)
+            self.n = int(state["n"])
+
+    def add(self, F_t: torch.Tensor) -> None:
+        F = F_t.detach().flatten(1)
+        F = F.float() if F.device.type == "mps" else F.double()  # MPS has no float64
+        F = F / F.norm(dim=1, keepdim=True).clamp_min(1e-30)
+        if self.ref is None:
+            self.ref = F[0].double().cpu()
+        if getattr(self, "_ref", None) is None or self._ref.device != F.device:
+            self._ref = self.ref.to(F)  # once per device: no copy per step
+        ref = self._ref
+        F = F * torch.where(F @ ref < 0, -1.0, 1.0)[:, None]
+        s = F.sum(0)
+        self.sum = s if self.sum is None else self.sum.to(s) + s
+        self.n += F.shape[0]
+
+    def F(self) -> torch.Tensor | None:
+        """The rank-2 mean (3, 3), float64 on the CPU; None before the first step."""
+        return _rank2(self.sum.double().cpu().reshape(3, 3)) if self.n else None
+
+    def state(self) -> dict:
+        if not self.n:
+            return {}
+        return {"ref": self.ref.tolist(), "sum": self.sum.double().cpu().tolist(), "n": self.n}
+
+
+def beats(metrics: dict[str, float], constant: str) -> bool:
+    """Whether the validation's network beats ``constant`` ("mean_f" or "ahead"): a lower median SED than the
+    constant's, and Wilcoxon's test of the per-pair median SEDs finds a difference (p < BEATS_P)."""
+    sed, c, p = (metrics.get(k, math.nan) for k in ("sed_px", f"{constant}_sed_px", f"{constant}_p"))
+    return bool(sed < c and p < BEATS_P)
+
+
+def versus_constants(metrics: dict[str, float], what: str = "validation") -> str:
+    """One line setting the network beside both constants: "the model beats both constants: ..." or "the model
+    is no better than the constant: validation median SED 1.648 px vs 1.651 px for the training pairs' mean F
+    (p 0.41) and 1.503 px for straight-ahead motion (p 0.02)"; "" when the metrics lack the constants (a
+    checkpoint of an older fviz)."""
+    present = [c for c in CONSTANTS if f"{c}_sed_px" in metrics]
+    if "sed_px" not in metrics or not present:
+        return ""
+    figures = " and ".join(f"{metrics[f'{c}_sed_px']:.4g} px for {CONSTANT_NAMES[c]} (p {metrics.get(f'{c}_p', math.nan):.2g})"
+                           for c in present)
+    lost = [c for c in present if not beats(metrics, c)]
+    head = (NO_BETTER if lost else
+            f"the model beats {'both constants' if len(present) > 1 else 'the constant'}")
+    return f"{head}: {what} median SED {metrics['sed_px']:.4g} px vs {figures}"
 
 
 def train(
@@ -492,6 +639,8 @@ def train(
     recording_id = str(uuid.uuid4())
     curve_state: dict = {}
     watch_state: list = []
+    note_state: list = []
+    mean_state: dict = {}
     if resume:
         if not ckpt_path.exists():
             raise FvizError(f"--resume: no checkpoint to resume at {ckpt_path}")
@@ -507,6 +656,8 @@ def train(
         recording_id = ckpt.get("recording_id") or recording_id
         curve_state = ckpt.get("curves") or {}
         watch_state = ckpt.get("watch") or []
+        note_state = ckpt.get("notes") or []
+        mean_state = ckpt.get("target_mean") or {}
         if ckpt.get("rng_state") is not None and world == 1:
             torch.set_rng_state(ckpt["rng_state"])
 
@@ -543,7 +694,7 @@ def train(
         val_loader = _loader(val_ds, _Batches(epoch_batches(len(val_ds), t.batch_size, 0, 0, shuffle=False)), loader_workers, pin)
 
     if main and record:
-        curves: Any = _Curves(out_dir / "train.rrd", recording_id, curve_state, watch_state)
+        curves: Any = _Curves(out_dir / "train.rrd", recording_id, curve_state, watch_state, note_state)
         t0 = time.perf_counter()
         curves.pairs, watch_batch = watched_pairs(val_ds, t.watch_pairs, device)
         curves.watch_seconds += time.perf_counter() - t0
@@ -563,6 +714,8 @@ def train(
     point_rng = torch.Generator().manual_seed(t.seed * 7919 + step + rank)  # virtual correspondences of sed_loss
     best = [min((h[t.keep_best] for h in history if t.keep_best in h), default=math.inf) if t.keep_best else math.inf]
     last_grad: list[Any] = [None]
+    # the constant F of the training pairs stepped on (validation's mean_f), signs aligned with the first pair's
+    target_mean = TargetMean(mean_state, ref=None if mean_state else train_ds[[0]][2][0])
 
     def flush() -> None:
         """Bring the pending losses to the host (one sync), stop on a non-finite one, log them."""
@@ -601,6 +754,8 @@ def train(
                 step=step, epoch=epoch, batch_in_epoch=batch_in_epoch, recording_id=recording_id, version=version,
             )
             state["curves"] = curves.state()
+            state["notes"] = curves.notes
+            state["target_mean"] = target_mean.state()
             if watch_batch is not None:
                 if not t.watch_every:
                     watch()
@@ -626,9 +781,12 @@ def train(
         nonlocal metrics
         flush()
         if main and val_loader is not None:
-            metrics = validate(model, val_loader, recipe, device, amp_dtype)
+            metrics = validate(model, val_loader, recipe, device, amp_dtype, mean_f=target_mean.F())
             history.append({"step": step, "epoch": epoch, **metrics})
             curves.log(step, {f"val/{k}": v for k, v in metrics.items()})
+            verdict = versus_constants(metrics)
+            if verdict:
+                curves.note(step, verdict)
             if t.keep_best and metrics.get(t.keep_best, math.inf) < best[0]:
                 best[0] = metrics[t.keep_best]
                 dtype = torch.float16 if t.export_dtype == "float16" else torch.float32
@@ -638,9 +796,11 @@ def train(
             if progress:
                 recent = losses[-t.log_every:]
                 train_part = f"train loss {sum(recent) / len(recent):.4g} (mean of the last {len(recent)} batches, training mode)" if recent else ""
-                others = "  ".join(f"{k} {v:.4g}" for k, v in metrics.items() if k != "loss")
+                others = "  ".join(f"{k} {v:.4g}" for k, v in metrics.items() if k in VALIDATION_FIGURES and k != "loss")
                 bar.print(f"step {step} (epoch {epoch}): {train_part} | val loss {metrics.get('loss', float('nan')):.4g} "
                           f"({len(val_ds)} held-out pairs, eval mode: BatchNorm running statistics, no dropout) | {others}")
+                if verdict:
+                    bar.print(f"step {step}: {verdict}")
 
     bar = _progress(progress and main, total, step, recipe.model.variant, console)
     done = step >= total
@@ -659,6 +819,7 @@ def train(
                 img_a = img_a.to(device, non_blocking=True)
                 img_b = img_b.to(device, non_blocking=True)
                 F_t = F_t.to(device, non_blocking=True)
+                target_mean.add(F_t)
                 with torch.autocast(device.type, dtype=amp_dtype or torch.float32, enabled=amp_dtype is not None):
                     F_pred = net(img_a, img_b)
                 loss = f_loss(F_pred, F_t, norm, t.l1_weight, t.l2_weight, t.loss_frame, recipe.input_hw)
