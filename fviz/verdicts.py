@@ -219,7 +219,7 @@ def pair_verdict(rec: dict, by: str | None = None) -> Verdict:
     if suspect:
         return Verdict(GT_SUSPECT, f"{suspect['short']}: trust {suspect['reference']}'s F, not the metrics")
     fine = [e["name"] for e in judged if e["name"] not in dict(failing)]
-    beside = _beside_constant(diag, judged)
+    beside = _beside_constant(diag, rows)
     if failing:
         who = fail_phrase(failing)
         also = f"; {', '.join(fine)} fine" if fine else ""
@@ -273,23 +273,18 @@ def _degenerate(diag: dict, n: int, static_px: float, failing: bool) -> Verdict 
                    "rotation" if rotation else "planar")
 
 
-def _beside_constant(diag: dict, judged: list[dict]) -> str:
-    """"; deep no better than the straight-ahead constant (median SED 3.1 vs 2.9 px)" for each network estimate
-    that does not beat the constant on the evaluation matches (``ahead_sed_median``); "" otherwise."""
-    from fviz.diagnose import fits_matches
+def _beside_constant(diag: dict, rows: list[dict]) -> str:
+    """"; deep 3.1 px vs ahead 2.9 px sed_median: no better than the constant" for a network's estimate, set beside
+    straight-ahead motion on the same evaluation matches (:func:`fviz.estimators.baselines.deep_versus_ahead`;
+    ``ahead``'s row, else its median SED that :func:`fviz.diagnose.diagnose` measures on every pair with cameras);
+    "" without a network's estimate or cameras."""
+    from fviz.estimators.baselines import deep_versus_ahead
 
     ahead = _num(diag.get("ahead_sed_median"))
-    out = []
-    for e in judged:
-        if fits_matches(e["name"]) or not (e["name"] == "deep" or e["name"].startswith("deep")) or e.get("error"):
-            continue
-        sed = _num((e.get("metrics") or {}).get("sed_median"))
-        if math.isfinite(ahead) and not sed < ahead:
-            out.append(f"; {e['name']} no better than the straight-ahead constant (median SED {sed:.3g} vs "
-                       f"{ahead:.3g} px)")
-        elif math.isfinite(ahead):
-            out.append(f"; {e['name']} beats the straight-ahead constant (median SED {sed:.3g} vs {ahead:.3g} px)")
-    return "".join(out)
+    if not any(r["name"] == "ahead" for r in rows) and math.isfinite(ahead):
+        rows = [*rows, {"name": "ahead", "error": None, "metrics": {"sed_median": ahead}}]
+    judged = deep_versus_ahead(rows)
+    return f"; {judged['text']}" if judged else ""
 
 
 def _agreement_verdict(res: dict, names: list[str]) -> Verdict:

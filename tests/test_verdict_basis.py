@@ -119,3 +119,17 @@ def test_gt_suspect_needs_a_held_out_consensus_of_spare_inliers():
     rows[0]["metrics"]["n_inliers"] = 300
     diag["estimators"]["ransac"]["sed_median_heldout"] = 0.4
     assert gt_suspect(diag, rows)["reference"] == "ransac"  # the same misfit, with redundancy: suspect
+
+
+def test_a_network_is_set_beside_the_straight_ahead_constant():
+    """A deep estimate's verdict says whether it beats straight-ahead motion on the same points (measured on every
+    pair with cameras, ``-e ahead`` or not), and says so when it does not."""
+    row = lambda name, sed: {"name": name, "error": None, "metrics": {"sed_median": sed, "pose_err_deg": 3.0}}  # noqa: E731
+    rec = {"error": None, "diagnostics": {"n_matches": 900, "static_fraction": 0.0, "ahead_sed_median": 1.5},
+           "result": {"n_matches": 900, "n_eval": 800, "eval_threshold_px": 2.0, "F_gt": np.eye(3).tolist(),
+                      "match_precision": {"px_prec@1": 0.8, "px_prec@2": 0.9},
+                      "estimators": [row("magsac", 0.3), row("deep", 1.6)]}}
+    v = pair_verdict(rec)
+    assert v.kind == NO_FAILURE and v.text.endswith("; deep 1.6 px vs ahead 1.5 px sed_median: no better than the constant")
+    rec["result"]["estimators"][1] = row("deep", 0.9)
+    assert pair_verdict(rec).text.endswith("deep 0.9 px vs ahead 1.5 px sed_median: beats the constant")
