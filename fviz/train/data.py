@@ -44,6 +44,7 @@ import torch
 from fviz.errors import FvizError
 from fviz.geometry.fundamental import NormalizationError, normalize
 from fviz.models.predict import flip_matrix
+from fviz.train.recipe import synthetic_api, resolve_path, scene_config  # noqa: F401 (scene_config: re-exported)
 
 MAX_CACHED_FRAMES = 4000  # decoded KITTI frames kept per process (~1.9 GB at 1242 x 375)
 SEED_SPAN = 10**7  # synthetic seeds of one recipe seed: [base, base + SEED_SPAN)
@@ -128,37 +129,6 @@ class CachedPairs(torch.utils.data.Dataset):
         return self.img_a[i].float() / 255.0, self.img_b[i].float() / 255.0, self.F[i]
 
 
-def _synthetic_api():
-    try:
-        from fviz.data import synthetic
-    except ImportError as exc:
-        raise FvizError(f"data.source 'synthetic' needs fviz.data.synthetic, which cannot be imported: {exc}") from None
-    return synthetic
-
-
-def scene_config(input_hw: tuple[int, int], extra: dict):
-    """SceneConfig(width=W, height=H, **extra), unknown fields reported as FvizError."""
-    synthetic = _synthetic_api()
-    if "width" in extra or "height" in extra:
-        raise FvizError("data.synthetic: width/height come from model.input_size; do not set them here")
-    try:
-        return synthetic.SceneConfig(width=int(input_hw[1]), height=int(input_hw[0]), **extra)
-    except TypeError as exc:
-        raise FvizError(f"data.synthetic: {exc}") from None
-    except FvizError as exc:
-        text = str(exc)
-        for field, i in (("SceneConfig.width", 1), ("SceneConfig.height", 0)):
-            if text.startswith(field):  # the size is the recipe's model.input_size [H, W]: name that key
-                import re
-
-                bounds = re.search(r"\[(\d+), (\d+)\]", text)
-                span = f" of {bounds[1]} to {bounds[2]} pixels" if bounds else ""
-                raise FvizError(f"model.input_size {list(map(int, input_hw))}: the synthetic scenes need a "
-                                f"{'width (W)' if i else 'height (H)'}{span}, got {int(input_hw[i])} "
-                                "(model.input_size is [H, W])") from None
-        raise
-
-
 class SyntheticPairs(torch.utils.data.Dataset):
     """Synthetic scenes, one seed per index.  ds[list] -> batch (see module docstring)."""
 
@@ -183,7 +153,7 @@ class SyntheticPairs(torch.utils.data.Dataset):
     def __getitem__(self, idx):
         from fviz.models.normalization import normalize_f
 
-        synthetic = _synthetic_api()
+        synthetic = synthetic_api()
         if self._config is None:
             self._config = scene_config(self.input_hw, self.extra)
         seeds = [self.seeds[i] for i in _as_indices(idx)]
@@ -525,8 +495,6 @@ def kitti_items(recipe, name: str, part: str | None = None) -> list[KittiItem]:
 
 
 def resolve_root(root: str):
-    from fviz.train.recipe import resolve_path
-
     return resolve_path(root)
 
 
@@ -577,7 +545,7 @@ def make_datasets(recipe, render_device: str | torch.device = "cpu") -> tuple[to
     d = recipe.data
     hw, norm = recipe.input_hw, recipe.model.variant.rsplit("-", 1)[1]
     if d.source == "synthetic":
-        _synthetic_api()
+        synthetic_api()
         scene_config(hw, d.synthetic)  # fail early on unknown SceneConfig fields
         tr, va = synthetic_seeds(recipe.train.seed, d.train_size, d.val_size)
         return (SyntheticPairs(tr, hw, norm, d.synthetic, render_device), SyntheticPairs(va, hw, norm, d.synthetic, render_device))

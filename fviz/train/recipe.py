@@ -401,8 +401,6 @@ def _build(d: dict, path: str, origin: str) -> Recipe:
             import fviz.data.synthetic  # noqa: F401  (without it the data fail later, with their own message)
         except ImportError:
             return recipe
-        from fviz.train.data import scene_config
-
         try:  # an input size the renderer refuses is named by its recipe key now, not when training starts
             scene_config(recipe.input_hw, recipe.data.synthetic)
         except FvizError as exc:
@@ -432,6 +430,37 @@ def load_recipe(path: str | Path, overrides: list[str] | tuple[str, ...] = ()) -
         merged = _merge(merged, layer)
     merged.setdefault("model", {})["variant"] = variant
     return _build(merged, path=str(path), origin=f"recipe {path}")
+
+
+def synthetic_api():
+    try:
+        from fviz.data import synthetic
+    except ImportError as exc:
+        raise FvizError(f"data.source 'synthetic' needs fviz.data.synthetic, which cannot be imported: {exc}") from None
+    return synthetic
+
+
+def scene_config(input_hw: tuple[int, int], extra: dict):
+    """SceneConfig(width=W, height=H, **extra), unknown fields reported as FvizError."""
+    synthetic = synthetic_api()
+    if "width" in extra or "height" in extra:
+        raise FvizError("data.synthetic: width/height come from model.input_size; do not set them here")
+    try:
+        return synthetic.SceneConfig(width=int(input_hw[1]), height=int(input_hw[0]), **extra)
+    except TypeError as exc:
+        raise FvizError(f"data.synthetic: {exc}") from None
+    except FvizError as exc:
+        text = str(exc)
+        for field, i in (("SceneConfig.width", 1), ("SceneConfig.height", 0)):
+            if text.startswith(field):  # the size is the recipe's model.input_size [H, W]: name that key
+                import re
+
+                bounds = re.search(r"\[(\d+), (\d+)\]", text)
+                span = f" of {bounds[1]} to {bounds[2]} pixels" if bounds else ""
+                raise FvizError(f"model.input_size {list(map(int, input_hw))}: the synthetic scenes need a "
+                                f"{'width (W)' if i else 'height (H)'}{span}, got {int(input_hw[i])} "
+                                "(model.input_size is [H, W])") from None
+        raise
 
 
 def resolve_path(p: str) -> Path:
