@@ -14,7 +14,7 @@ a camera's width x height that of its images (else K is at another resolution).
 
 Pairs: those of ``--pairs FILE`` (only the names of each line are used), else the images sharing at least
 ``--min-shared`` 3D points (co-visibility), else, when the model has no 3D points, every pair of registered
-images; in image-id order.
+images, with a note whatever ``--min-shared`` is (it cannot select them); in image-id order.
 """
 
 from __future__ import annotations
