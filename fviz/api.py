@@ -201,11 +201,11 @@ def _to_uint8(a: np.ndarray, what: str, notes: list[str]) -> np.ndarray:
         return (a.astype(np.float64) * 255.0).round().astype(np.uint8)
     if a.dtype != np.uint16 and lo >= 0 and hi <= 255:
         return a.astype(np.float64).round().astype(np.uint8)
-    if lo >= 0:
-        scaled = a.astype(np.float64) * (255.0 / max(hi, 1e-300)) if hi > 0 else np.zeros(a.shape)
+    if lo >= 0:  # uint16 (any largest value) or values above 255
+        scaled = a.astype(np.float64) * (255.0 / hi if hi > 0 else 0.0)
         notes.append(f"{what}: {a.dtype} values 0 .. {hi:g}: scaled to 8 bits by that largest value")
     else:
-        scaled = (a.astype(np.float64) - lo) * (255.0 / (hi - lo))
+        scaled = (a.astype(np.float64) - lo) * (255.0 / (hi - lo) if hi > lo else 0.0)
         notes.append(f"{what}: {a.dtype} values {lo:g} .. {hi:g}: stretched to 0 .. 255 (8 bits)")
     return scaled.round().clip(0, 255).astype(np.uint8)
 
