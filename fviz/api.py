@@ -163,13 +163,21 @@ def _kitti_or_synthetic(kitti_root, sequence, drive, frame, kind, step, cams, sy
     return open_dataset(Path(root), sequence, drive).pair(frame, kind, step, None if cams is None else tuple(cams))
 
 
-def _as_image(image: Any, what: str) -> tuple[np.ndarray, str | None]:
-    """A path or an array -> ((H, W) or (H, W, 3) uint8, the path or None). Float arrays are taken in [0, 1]."""
+def _as_image(image: Any, what: str, notes: list[str]) -> tuple[np.ndarray, str | None]:
+    """A path or an array -> ((H, W) or (H, W, 3) uint8, the path or None); what was changed is added to ``notes``.
+
+    Arrays: uint8 as they are; floats within [0, 1] times 255; other values within [0, 255] (floats, wider integers)
+    taken as 8-bit levels (rounded); uint16 (a 16-bit PNG read with IMREAD_UNCHANGED) and other non-negative values
+    scaled by the image's largest value to 0..255, as a 16-bit PNG file is (:func:`fviz.data.images.read_user_image`);
+    negative values stretched from [min, max] to [0, 255]. Each change of range is a note."""
     if isinstance(image, (str, Path)):
         from fviz.data.images import read_user_image
 
-        return read_user_image(image, what), str(image)
-    a = np.asarray(image.detach().cpu() if hasattr(image, "detach") else image)
+        return read_user_image(image, what, notes), str(image)
+    try:
+        a = np.asarray(image.detach().cpu() if hasattr(image, "detach") else image)
+    except (TypeError, ValueError, RuntimeError) as exc:
+        raise FvizError(f"{what}: not an image array or a path ({type(image).__name__}: {exc})") from None
     if a.ndim == 3 and a.shape[0] in (1, 3) and a.shape[2] not in (1, 3):  # (C, H, W), torch's layout
         a = np.moveaxis(a, 0, -1)
     if a.ndim == 3 and a.shape[2] == 1:
@@ -177,17 +185,42 @@ def _as_image(image: Any, what: str) -> tuple[np.ndarray, str | None]:
     if a.ndim not in (2, 3) or (a.ndim == 3 and a.shape[2] != 3) or min(a.shape[:2]) < 2:
         raise FvizError(f"{what}: expected a (H, W) or (H, W, 3) image, got shape {a.shape}")
     if a.dtype != np.uint8:
-        if not np.issubdtype(a.dtype, np.number) or not np.isfinite(a).all():
-            raise FvizError(f"{what}: expected uint8 or finite numbers, got {a.dtype}")
-        a = np.clip(a * 255.0 if a.max() <= 1.0 else a, 0, 255).round().astype(np.uint8)
+        if a.dtype == np.bool_ or not np.issubdtype(a.dtype, np.number) or np.iscomplexobj(a):
+            raise FvizError(f"{what}: expected uint8 or real numbers, got {a.dtype}")
+        if not np.isfinite(a).all():
+            raise FvizError(f"{what}: has NaN or infinite values ({a.dtype})")
+        a = _to_uint8(a, what, notes)
     return np.ascontiguousarray(a), None
+
+
+def _to_uint8(a: np.ndarray, what: str, notes: list[str]) -> np.ndarray:
+    """The range rule of :func:`_as_image` for an array that is not uint8 (finite, real)."""
+    lo, hi = float(a.min()), float(a.max())
+    floating = np.issubdtype(a.dtype, np.floating)
+    if floating and lo >= 0 and hi <= 1:
+        return (a.astype(np.float64) * 255.0).round().astype(np.uint8)
+    if a.dtype != np.uint16 and lo >= 0 and hi <= 255:
+        return a.astype(np.float64).round().astype(np.uint8)
+    if lo >= 0:  # uint16 (any largest value) or values above 255
+        scaled = a.astype(np.float64) * (255.0 / hi if hi > 0 else 0.0)
+        notes.append(f"{what}: {a.dtype} values 0 .. {hi:g}: scaled to 8 bits by that largest value")
+    else:
+        scaled = (a.astype(np.float64) - lo) * (255.0 / (hi - lo) if hi > lo else 0.0)
+        notes.append(f"{what}: {a.dtype} values {lo:g} .. {hi:g}: stretched to 0 .. 255 (8 bits)")
+    return scaled.round().clip(0, 255).astype(np.uint8)
 
 
 def _matrix(value: Any, what: str, shapes: tuple[tuple[int, ...], ...] = ((3, 3),)) -> np.ndarray | None:
     """A finite float64 array of one of ``shapes`` (None stays None); FvizError naming ``what`` otherwise."""
     if value is None:
         return None
-    a = np.asarray(value.detach().cpu() if hasattr(value, "detach") else value, dtype=np.float64)
+    try:
+        a = np.asarray(value.detach().cpu() if hasattr(value, "detach") else value)
+        if np.iscomplexobj(a):
+            raise TypeError("complex entries")
+        a = a.astype(np.float64)
+    except (TypeError, ValueError, RuntimeError) as exc:
+        raise FvizError(f"{what}: expected numbers, got {type(value).__name__} ({str(exc).splitlines()[0]})") from None
     if a.shape not in shapes:
         raise FvizError(f"{what}: expected shape {' or '.join(map(str, shapes))}, got {a.shape}")
     if not np.isfinite(a).all():
@@ -209,24 +242,29 @@ def pair_from_images(
     """A pair of your two images, with whatever you know of their geometry.
 
     Args:
-        image_a: a file path, or an array (H, W) / (H, W, 3) RGB / (3, H, W); uint8, or floats in [0, 1].
+        image_a: a file path, or an array (H, W) / (H, W, 3) RGB / (3, H, W): uint8; floats in [0, 1] (times 255);
+            other values in [0, 255] as 8-bit levels; uint16 and other larger values scaled by the image's largest
+            value (as a 16-bit PNG is); negative values stretched from [min, max] to [0, 255]. A change of range is
+            a note (``pair.notes``).
         image_b: the same for the second image.
-        K: (3, 3) intrinsics of both images (or 4 numbers fx, fy, cx, cy). Needed for pose errors.
+        K: (3, 3) intrinsics of both images (or 4 numbers fx, fy, cx, cy), which must then have the same size (else
+            give K_a and K_b). Needed for pose errors.
         K_a: (3, 3) intrinsics of image a (with ``K_b``), or 4 numbers fx, fy, cx, cy.
         K_b: (3, 3) intrinsics of image b.
         R: (3, 3) the rotation from camera a to b (X_b = R X_a + t); with K and t it gives the ground truth F.
         t: (3,) the translation from camera a to b (any length but 0).
-        F_gt: (3, 3) ground-truth F (x_b^T F_gt x_a = 0, pixels), when no pose is known. May be omitted
+        F_gt: (3, 3) ground-truth F (x_b^T F_gt x_a = 0, pixels), of rank 2, when no pose is known. May be omitted
             altogether: the estimators are then compared with each other.
         name: a label for the pair (its ``id.sequence``).
 
     Returns:
         The :class:`Pair` (``F_gt`` normalized to unit Frobenius norm).
     """
-    from fviz.data.images import intrinsics, pair_of_arrays
+    from fviz.data.images import check_rank2, intrinsics, pair_of_arrays
     from fviz.geometry import is_valid, normalize
 
-    (img_a, path_a), (img_b, path_b) = _as_image(image_a, "image_a"), _as_image(image_b, "image_b")
+    notes: list[str] = []
+    (img_a, path_a), (img_b, path_b) = _as_image(image_a, "image_a", notes), _as_image(image_b, "image_b", notes)
     if K is not None and (K_a is not None or K_b is not None):
         raise FvizError("K: sets both cameras; give K, or K_a and K_b, not both")
     Ks = {}
@@ -248,11 +286,12 @@ def pair_from_images(
     if F is not None:
         if not is_valid(F):
             raise FvizError("F_gt: all zero")
-        F = normalize(F, "fbn")
+        F = normalize(check_rank2(F / np.abs(F).max(), "F_gt"), "fbn")
     pid = PairId("images", name, "pair", 0, 1, root=str(Path(path_a).parent) if path_a else "",
                  image_a=Path(path_a).name if path_a else "a", image_b=Path(path_b).name if path_b else "b")
     extra = {"path_a": path_a, "path_b": path_b} if path_a and path_b else {}
-    return pair_of_arrays(pid, img_a, img_b, Ks["K_a"], Ks["K_b"], T_ab, F, what="R/t/F_gt", extra=extra)
+    return pair_of_arrays(pid, img_a, img_b, Ks["K_a"], Ks["K_b"], T_ab, F, what="R/t/F_gt", extra=extra, notes=notes,
+                          shared_K="K" if K is not None else None)
 
 
 # ---------------------------------------------------------------------------------------------- evaluation
@@ -283,8 +322,9 @@ def inspect_pair(
         estimators: estimator names fviz knows ("8point", "ransac", "magsac", "lmeds", "poselib", "deep:PATH",
             "module:function", ...) or ``(name, function)`` pairs, ``function(pair, x_a, x_b) -> F`` or
             ``(F, inlier_mask)`` with x_a, x_b (M, 2) matched pixels; ``()`` for none.
-        F: your matrices, ``{"mine": F}`` with F (3, 3) in pixels (x_b^T F x_a = 0; numpy or torch). Each becomes
-            a row scored exactly as an estimator's (inliers: Sampson distance below ``threshold``).
+        F: your matrices, ``{"mine": F}`` with F (3, 3) of rank 2 in pixels (x_b^T F x_a = 0; numpy or torch). Each
+            becomes a row scored exactly as an estimator's (inliers: Sampson distance below ``threshold``). A rank-3
+            matrix is refused (it has no epipoles): project it to rank 2 yourself if that is what you mean.
         features: "sift", "orb" or "akaze" (fviz's own; ignored when the pair carries your matches).
         max_keypoints: keypoints per image.
         ratio: Lowe's ratio test of the matcher.
@@ -299,14 +339,17 @@ def inspect_pair(
 
     Returns:
         A :class:`fviz.evaluate.PairResult`: ``estimators`` (one ``EstimatorResult`` per F: ``name``, ``F`` (3, 3),
-        ``metrics`` dict, ``error``), the ground truth's row ``gt`` first when known, ``verdict`` (``kind``, ``text``:
+        ``metrics`` dict, ``error``), the ground truth's row ``gt`` first when known (without it, a threshold sweep's
+        per-pair oracle is left out, with a note), ``verdict`` (``kind``, ``text``:
         the pair's verdict, :mod:`fviz.verdicts`); ``to_dict()`` is exactly
         what ``fviz inspect pair --json`` prints (without its ``recording`` key).
     """
     from fviz.diagnose import gt_suspect_note
     from fviz.estimators.base import missing_K
     from fviz.estimators.options import EstimatorOptions
+    from fviz.estimators.sweep import ORACLE_SUFFIX
     from fviz.evaluate import GT_NAME, evaluate_pair
+    from fviz.geometry import NORMS
     from fviz.verdicts import verdict_of
 
     if not isinstance(pair, Pair):
@@ -322,6 +365,12 @@ def inspect_pair(
     ests = [next(named) if isinstance(e, str) else e for e in estimators]
     if len({n for n, _ in ests}) != len(ests):
         raise FvizError(f"estimators: repeated name in {', '.join(n for n, _ in ests)}")
+    if F is not None and not isinstance(F, Mapping):
+        shape = getattr(F, "shape", None)
+        raise FvizError(f"F: expected a dict of your matrices by name, {{\"mine\": F}}, got {type(F).__name__}"
+                        + (f" of shape {tuple(shape)}" if shape is not None else "") + " (write F={\"mine\": F})")
+    from fviz.data.images import check_rank2
+
     for name, given in (F or {}).items():
         if not isinstance(name, str) or not name or "/" in name:
             raise FvizError(f"F: key {name!r} is not a name (a non-empty string without '/')")
@@ -330,14 +379,58 @@ def inspect_pair(
         m = _matrix(given, f"F[{name!r}]")
         if not np.abs(m).max() > 0:
             raise FvizError(f"F[{name!r}]: all zero")
+        check_rank2(m / np.abs(m).max(), f"F[{name!r}]")
         ests.append((name, _given(m)))
+    notes = []
+    if not pair.has_gt and (oracles := [n for n, _ in ests if n.endswith(ORACLE_SUFFIX)]):
+        ests = [(n, fn) for n, fn in ests if n not in oracles]
+        notes.append(f"{', '.join(oracles)} left out: a per-pair oracle keeps the threshold whose F is closest to the "
+                     "ground truth, and this pair has none")
     if (why := next((w for n, fn in ests if (w := missing_K(n, fn, pair))), None)) is not None:
         raise FvizError(why)
+    if norm not in NORMS:
+        raise FvizError(f"norm {norm!r}: choose one of {', '.join(NORMS)}")
     result = evaluate_pair(pair, ests, opts.feature_config(), norm, eval_threshold, threshold, timeout=timeout)
+    result.notes[:0] = notes
     if (note := gt_suspect_note(pair, result)) is not None:
         result.notes.insert(0, note)
     result.verdict = verdict_of(pair, result)
+    result._of_pair = pair_fingerprint(pair)  # log_result / save_recording check they are given this pair
     return result
+
+
+def pair_fingerprint(pair: Pair) -> tuple:
+    """(name, sizes, digest of the pixels and the ground truth) of a pair: what ties a result to its pair."""
+    import hashlib
+
+    h = hashlib.blake2b(digest_size=16)
+    for a in (pair.image_a, pair.image_b, pair.F_gt):
+        if a is not None:
+            a = np.ascontiguousarray(a)
+            h.update(repr((a.dtype.str, a.shape)).encode())
+            h.update(a.data)  # no copy
+    return pair.id.name, tuple(pair.size_a), tuple(pair.size_b), h.hexdigest()
+
+
+def check_result_of(pair: Pair, result: Any) -> None:
+    """A one-line error when ``result`` was not computed on ``pair`` (its name, image sizes or, for a result of
+    :func:`inspect_pair`, pixels and ground truth differ): its F's would be drawn over another pair's images."""
+    from fviz.evaluate import PairResult
+
+    if not isinstance(pair, Pair):
+        raise FvizError(f"pair: expected an fviz.Pair, got {type(pair).__name__}")
+    if not isinstance(result, PairResult):
+        raise FvizError(f"result: expected the PairResult of fviz.inspect_pair, got {type(result).__name__}")
+    got = (result.pair.get("name"), tuple(result.pair.get("size_a") or ()), tuple(result.pair.get("size_b") or ()))
+    have = (pair.id.name, tuple(pair.size_a), tuple(pair.size_b))
+    if got != have:
+        size = lambda t: f"{t[1][0]}x{t[1][1]} and {t[2][0]}x{t[2][1]}" if len(t[1]) == len(t[2]) == 2 else "?"  # noqa: E731
+        raise FvizError(f"result: computed on the pair {got[0]} ({size(got)}), not on this pair {have[0]} ({size(have)}): "
+                        "give each pair its own inspect_pair result")
+    mark = getattr(result, "_of_pair", None)
+    if mark is not None and mark != pair_fingerprint(pair):
+        raise FvizError(f"result: computed on another pair named {have[0]} (other pixels or ground truth): give each "
+                        "pair its own inspect_pair result")
 
 
 def _given(F: np.ndarray):
@@ -382,6 +475,7 @@ def log_result(rec: rr.RecordingStream | None, pair: Pair, result: PairResult, *
     rec = _stream(rec)
     if lines < 0 or probe < 0:
         raise FvizError(f"{'lines' if lines < 0 else 'probe'}: must be >= 0")
+    check_result_of(pair, result)
     log_pair_recording(rec, pair, result, lines, probe, probe_by, index)
     if blueprint:
         rec.send_blueprint(pair_blueprint(pair, result))
@@ -408,6 +502,7 @@ def save_recording(path: str | Path, pair: Pair, result: PairResult, *, lines: i
 
     if lines < 0 or probe < 0:
         raise FvizError(f"{'lines' if lines < 0 else 'probe'}: must be >= 0")
+    check_result_of(pair, result)
     target(Path(path))  # a folder or special file: refused (the writer's one-line error)
     if Path(path).suffix != ".rrd" and not (Path(path).exists() and not Path(path).is_file()):
         raise FvizError(f"path {path}: a recording is a *.rrd file")

@@ -1,5 +1,5 @@
 """Readers of a user's files, issue 31 ("Trust nothing, round two"): COLMAP cameras, poses and binary files,
-hloc and SuperGlue match files, images (a decompression bomb, a cut JPEG, 16-bit samples, EXIF orientation
+hloc and SuperGlue match files, images (a decompression bomb, a cut JPEG (refused), 16-bit samples, EXIF orientation
 against hloc's keypoints), a pairs file's rot under a calibrated estimator, fviz's own features.h5."""
 
 from __future__ import annotations
@@ -277,17 +277,23 @@ def test_a_decompression_bomb_is_refused_before_decoding(tmp_path):
     assert_one_line_error(proc, 2, f"image a {bomb}: 20000x20000 pixels, more than fviz decodes (200 megapixels)")
 
 
-def test_a_cut_jpeg_is_a_note(tmp_path):
+def test_a_cut_jpeg_is_a_one_line_error_before_decoding(tmp_path):
     import cv2
 
     ok, buf = cv2.imencode(".jpg", textured(480, 640))
     (tmp_path / "cut.jpg").write_bytes(buf.tobytes()[: len(buf) * 6 // 10])
     (tmp_path / "whole.jpg").write_bytes(buf.tobytes())
     (tmp_path / "whole2.jpg").write_bytes(buf.tobytes())
-    pair = two_images(str(tmp_path / "cut.jpg"), str(tmp_path / "whole.jpg"))
-    cut = [n for n in pair.notes if "cut short" in n]
-    assert len(cut) == 1 and cut[0].startswith("image a cut.jpg: the JPEG file is cut short (no end marker)")
-    assert np.ptp(pair.image_a[-40:]) == 0  # the lost part: flat grey, as the note says
+    # OpenCV alone decodes it, the lost part flat grey: what fviz would otherwise have matched on
+    assert np.ptp(cv2.imread(str(tmp_path / "cut.jpg"), cv2.IMREAD_GRAYSCALE)[-40:]) == 0
+    with pytest.raises(FvizError, match=rf"^image a {re.escape(str(tmp_path / 'cut.jpg'))}: the JPEG file is cut short "
+                                        r"\(no end marker, \d+ bytes\)"):
+        two_images(str(tmp_path / "cut.jpg"), str(tmp_path / "whole.jpg"))
+    proc = run_fviz("inspect", "pair", "--image-a", tmp_path / "whole.jpg", "--image-b", tmp_path / "cut.jpg",
+                    "--out", tmp_path / "p.rrd")
+    assert_one_line_error(proc, 2, f"image b {tmp_path / 'cut.jpg'}: the JPEG file is cut short")
+    assert "Premature end" not in proc.stderr  # refused from its header, before libjpeg decodes (and warns)
+    assert not (tmp_path / "p.rrd").exists()
     assert not [n for n in two_images(str(tmp_path / "whole.jpg"), str(tmp_path / "whole2.jpg")).notes if "cut" in n]
 
 

@@ -284,13 +284,16 @@ def test_mean_of_a_sequence_with_a_pairs_file_is_one_line(no_gt_run, tmp_path):
                           "a --pairs run has no sequence to average")
 
 
-def test_a_threshold_sweep_without_ground_truth_says_the_oracle_needs_it(no_gt_run, tmp_path):
+def test_a_threshold_sweep_without_ground_truth_leaves_the_oracle_out_and_says_why(no_gt_run, tmp_path):
     seq, pairs, _ = no_gt_run
     run = tmp_path / "r"
-    ok("eval", "--pairs", pairs, "--images", seq, "-e", "magsac", "--threshold", "sweep", *FAST, "--out-dir", run)
-    errors = {r["error"] for r in read_csv(run / "metrics.csv") if r["estimator"] == "magsac-th-oracle"}
-    assert len(errors) == 1 and "needs ground truth" in errors.pop() and "numpy" not in str(errors)
-    assert all(not r["error"] for r in read_csv(run / "metrics.csv") if r["estimator"] == "magsac-th1")
+    r = ok("eval", "--pairs", pairs, "--images", seq, "-e", "magsac", "--threshold", "sweep", *FAST, "--out-dir", run)
+    assert "note: magsac@oracle left out: the per-pair oracle picks each pair's threshold by its ground truth, and no " \
+           "pair of the selection has one" in r.stderr  # issue 40: not a failure on every pair
+    rows = read_csv(run / "metrics.csv")
+    assert not [row for row in rows if row["estimator"] == "magsac-th-oracle"] and "numpy" not in r.stderr
+    assert {row["estimator"] for row in rows} >= {"magsac-th1"}
+    assert all(not row["error"] for row in rows if row["estimator"] == "magsac-th1")
 
 
 # ------------------------------------------------------------------------------ leftovers

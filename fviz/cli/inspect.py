@@ -13,8 +13,13 @@ from fviz.cli import options as o
 from fviz.cli.browse import UnusedPort, WebBind, WebPort
 
 
-def default_out(name: str) -> Path:
-    return Path("runs") / (name.replace("/", "_") + ".rrd")
+GT_SUFFIX = {"pose": "", "F": ".F-gt", "correspondences": ".gt-matches", "none": ".no-gt"}
+
+
+def default_out(name: str, ground_truth: str = "pose") -> Path:
+    """runs/<pair>.rrd, with the kind of ground truth when it is not a pose (runs/<pair>.no-gt.rrd, .F-gt, .gt-matches):
+    the same pair inspected with and without ground truth keeps both recordings."""
+    return Path("runs") / (name.replace("/", "_") + GT_SUFFIX.get(ground_truth, f".{ground_truth}") + ".rrd")
 
 
 def pair(
@@ -40,7 +45,8 @@ def pair(
     lines: Annotated[int, typer.Option("--lines", help="Epipolar lines drawn per F (a fixed random subset of matches).")] = 30,
     probe: Annotated[int, typer.Option("--probe", help="Steps of the probe timeline: the worst evaluation matches, one per step.")] = 20,
     probe_by: Annotated[Optional[str], typer.Option("--probe-by", help="Order the probe by this estimator's residual (default: the largest over the estimators), or by 'score': your matches' scores, lowest first.")] = None,
-    out: Annotated[Optional[Path], typer.Option("--out", help="Recording to write, *.rrd (default runs/<pair>.rrd).",
+    out: Annotated[Optional[Path], typer.Option("--out", help="Recording to write, *.rrd (default runs/<pair>.rrd; "
+                                                "runs/<pair>.no-gt.rrd without ground truth, .F-gt / .gt-matches by its kind).",
                                                 callback=o.check_recording_path)] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print the result as JSON on stdout.")] = False,
     spawn: Annotated[bool, typer.Option("--spawn", help="Open the native Rerun viewer on the recording.")] = False,
@@ -70,7 +76,11 @@ def pair(
     from fviz.estimators.registry import DEFAULT_ESTIMATORS
     from fviz.evaluate import MIN_MATCHES, too_few_matches
 
+    from fviz.geometry import NORMS
+
     names, threshold = o.thresholds(tuple(estimator or DEFAULT_ESTIMATORS), threshold)
+    if norm not in NORMS:
+        raise FvizError(f"--norm {norm!r}: choose one of {', '.join(NORMS)}")
     if lines < 0:
         raise FvizError(f"--lines {lines}: must be >= 0")
     if probe < 0:
@@ -88,13 +98,14 @@ def pair(
                       synthetic=synthetic, seed=seed, image_a=image_a, image_b=image_b, K=K, K_a=K_a, K_b=K_b, T_ab=T_ab,
                       F_gt=F_gt, pairs=pairs, images=images, index=index, colmap=colmap, min_shared=min_shared,
                       matches=matches, gt_matches=gt_matches)
+    _check_probe_by(probe_by, p, ests, features)  # before the work, as every flag
     from fviz.prestart import import_in_background
 
     import_in_background("rerun")  # ~0.5 s: it loads while the features are computed (after the inputs are checked)
     result = api.inspect_pair(p, ests, features=features, max_keypoints=max_keypoints, ratio=ratio, mutual=mutual,
                               threshold=threshold, confidence=confidence, max_iters=max_iters, seed=seed, norm=norm,
                               eval_threshold=eval_threshold, timeout=estimator_timeout)
-    path = api.save_recording(out or default_out(p.id.name), p, result, lines=lines, probe=probe, probe_by=probe_by)
+    path = api.save_recording(out or default_out(p.id.name, p.ground_truth), p, result, lines=lines, probe=probe, probe_by=probe_by)
     doc = result.to_dict()
     doc["recording"] = str(path)
     if as_json:
@@ -121,6 +132,25 @@ def pair(
         )
     if result.errors:
         raise typer.Exit(1)
+
+
+def _check_probe_by(probe_by: str | None, pair, ests, features: str) -> None:
+    """--probe-by names an estimator of the run, the ground truth (when the pair has one) or 'score' (your
+    matches' scores): checked once the pair is loaded, before the features and estimators run."""
+    from fviz.errors import FvizError
+    from fviz.estimators.sweep import ORACLE_SUFFIX
+    from fviz.record.layout import GT
+    from fviz.record.writer import PROBE_BY_SCORE
+
+    if probe_by is None:
+        return
+    if probe_by == PROBE_BY_SCORE:  # scores: a user's matches' own, or a learned matcher's
+        if (pair.matches is not None and pair.matches.scores is None) or (pair.matches is None and features in ("sift", "orb", "akaze")):
+            raise FvizError(f"--probe-by {probe_by}: these matches have no scores (give --matches with the matcher's scores)")
+        return
+    names = [n for n, _ in ests if pair.has_gt or not n.endswith(ORACLE_SUFFIX)] + ([GT] if pair.has_gt else [])
+    if probe_by not in names:
+        raise FvizError(f"--probe-by {probe_by}: not an estimator of this pair ({', '.join(names)}; or score)")
 
 
 def _check_viewer(spawn: bool, web: bool, bind: str, port: int, web_port: int) -> None:

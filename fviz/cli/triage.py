@@ -23,7 +23,13 @@ RunDir = Annotated[Optional[Path], typer.Argument(metavar="RUN", help="The run f
 
 
 def one_run_folder(positional: Path | None, out_dir: Path | None, default: Path | None = None) -> Path | None:
-    """The run folder given as RUN or as --out-dir RUN (either way, as every command takes it); both must agree."""
+    """The run folder given as RUN or as --out-dir RUN (either way, as every command takes it); both must agree.
+    A file, or a recording's name (``*.rrd``), is a one-line error: a run is a folder."""
+    for given, flag in ((positional, ""), (out_dir, "--out-dir ")):
+        if given is not None and (Path(given).is_file() or (Path(given).suffix == ".rrd" and not Path(given).is_dir())):
+            what = "a recording" if Path(given).suffix == ".rrd" else "a file"
+            raise FvizError(f"{flag}{given}: {what}, not a run folder: give the folder an fviz eval run wrote (its "
+                            f"--out-dir)" + (f"; open a recording with fviz open {given}" if Path(given).suffix == ".rrd" else ""))
     if positional is None:
         return out_dir
     if out_dir is not None and out_dir != default and Path(out_dir).absolute() != Path(positional).absolute():

@@ -14,7 +14,7 @@ a camera's width x height that of its images (else K is at another resolution).
 
 Pairs: those of ``--pairs FILE`` (only the names of each line are used), else the images sharing at least
 ``--min-shared`` 3D points (co-visibility), else, when the model has no 3D points, every pair of registered
-images; in image-id order.
+images, with a note whatever ``--min-shared`` is (it cannot select them); in image-id order.
 """
 
 from __future__ import annotations
@@ -302,12 +302,10 @@ class ColmapSource:
             return out
         if len(rec.points3D) == 0:
             out = list(combinations(sorted(self.views), 2))
-            from fviz.data.sources import COLMAP_MIN_SHARED
-
-            if min_shared != COLMAP_MIN_SHARED:  # given (the default says nothing): it is ignored, and said so
-                _note_once(f"note: --colmap {self.model} has no 3D points (points3D is empty): all {len(out)} pairs of its "
-                           f"{len(self.views)} images are taken and --min-shared {min_shared} does not apply "
-                           "(select pairs with --pairs FILE or --frames A:B)")
+            # given or the default (the flag cannot tell an explicit 100 from none): co-visibility cannot select pairs
+            _note_once(f"note: --colmap {self.model} has no 3D points (points3D is empty): all {len(out)} pairs of its "
+                       f"{len(self.views)} images are taken and --min-shared {min_shared} does not apply "
+                       "(select pairs with --pairs FILE or --frames A:B)")
             return out
         out = [(a, b) for a, b in covisible_pairs(rec, min_shared) if a in self.views and b in self.views]
         if not out:

@@ -24,8 +24,9 @@ fviz's convention (OpenCV: origin at the centre of the top-left pixel).
 = outlier, left out); one file, or a folder of ``{stem0}_{stem1}.txt`` (either order), or kusvod2's ``{name}_pts.txt``
 for images ``{name}A``, ``{name}B``. Coordinates are taken in OpenCV's
 convention (subtract 1 from MATLAB's 1-based pixels first). The authors' model F beside them (``X_model.txt`` for
-``X_pts.txt`` or ``X.txt``) is F_gt, in whichever convention the labels fit (:func:`read_model_f`); without one,
-F_gt is fitted on the labels' Sampson distance (:func:`refined_fit`).
+``X_pts.txt`` or ``X.txt``) is F_gt, in whichever convention the labels fit (:func:`read_model_f`); without one
+(or with one of nine zeros, kusvod2's placeholder; a note says so), F_gt is fitted on the labels' Sampson distance
+(:func:`refined_fit`).
 
 A bad file is one line naming the file and the line (or the HDF5 dataset).
 """
@@ -67,10 +68,9 @@ class Correspondences:
 def read_table(path: Path, columns: tuple[int, ...], what: str) -> tuple[np.ndarray, list[int]]:
     """Rows of numbers (``#`` comments, blank lines skipped) with one of ``columns`` counts -> (rows (M, C),
     their line numbers); one-line errors name the file and line."""
-    try:
-        text = path.read_text()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise FvizError(f"{what} {path}: cannot read it ({getattr(exc, 'strerror', None) or exc})") from None
+    from fviz.data.images import read_text
+
+    text = read_text(path, what)
     rows, lines, width = [], [], None
     for n, raw in enumerate(text.splitlines(), 1):
         fields = raw.split("#", 1)[0].replace(",", " ").split()
@@ -472,18 +472,21 @@ def model_file(c: Correspondences) -> Path | None:
     return candidate if candidate.is_file() else None
 
 
-def read_model_f(path: Path, c: Correspondences) -> tuple[np.ndarray, bool]:
+def read_model_f(path: Path, c: Correspondences) -> tuple[np.ndarray, bool] | None:
     """(F, transposed): the 9 numbers of a model file as the F of ``x_b^T F x_a = 0``. Such files do not all share
     fviz's convention (some hold F with ``x_a^T F x_b = 0``): the one of F and F^T that the labelled points fit
-    better (median SED) is taken, and ``transposed`` says which."""
+    better (median SED) is taken, and ``transposed`` says which. None for a file of nine zeros (the published
+    kusvod2 files ship such placeholders for pairs without a model)."""
     from fviz.geometry import is_valid, normalize, symmetric_epipolar_distance
 
     rows, _ = read_table(path, (3, 9), "--gt-matches model F")
     if rows.size != 9:
         raise FvizError(f"--gt-matches model F {path}: {rows.size} numbers, expected the 9 of a 3x3 F")
     F = rows.reshape(3, 3)
+    if not np.abs(F).max() > 0:
+        return None
     if not is_valid(F):
-        raise FvizError(f"--gt-matches model F {path}: all zero or not finite")
+        raise FvizError(f"--gt-matches model F {path}: not finite")
     F = normalize(F / np.abs(F).max(), "fbn")
     direct, transposed = (float(np.median(symmetric_epipolar_distance(G, c.x_a, c.x_b))) for G in (F, F.T))
     return (F.T, True) if transposed < direct else (F, False)
@@ -519,14 +522,17 @@ def fit_gt(c: Correspondences, pair) -> tuple[np.ndarray, float, str]:
     if len(c.x_a) < MIN_GT:
         raise FvizError(f"--gt-matches {c.path}: {len(c.x_a)} correspondences, at least {MIN_GT} needed to fit F_gt")
     model = model_file(c)
-    if model is not None:
-        F, transposed = read_model_f(model, c)
+    read = read_model_f(model, c) if model is not None else None
+    if read is not None:
+        F, transposed = read
         how = f"the authors' model F of {model}" + (" (transposed: the file's F has x_a^T F x_b = 0)" if transposed else "")
     else:
         F = refined_fit(c.x_a, c.x_b)
         if F is None:
             raise FvizError(f"--gt-matches {c.path}: no F fits these correspondences (degenerate: all on a plane or a line?)")
         how = f"F_gt fitted to the {len(c.x_a)} ground-truth correspondences of {c.path} (8-point, then refined on their Sampson distance under a Cauchy loss)"
+        if model is not None:
+            how = f"{model} is all zeros (a placeholder, as kusvod2 ships for some pairs), taken as no model: {how}"
     sed = symmetric_epipolar_distance(F, c.x_a, c.x_b)
     med = float(np.median(sed))
     note = (f"{how}: their SED to it, median {med:.2g} px, max {float(sed.max()):.2g} px; the metrics are computed "

@@ -9,8 +9,9 @@ Pixel coordinates are OpenCV's (origin at the centre of the top-left pixel).
 
 Before decoding, a PNG's or JPEG's header is read (:func:`image_header`): an image of more than
 :data:`MAX_IMAGE_PIXELS` is refused (a decompression bomb); a JPEG without its end marker (a cut file, whose
-missing part OpenCV decodes as flat grey) is a note; a 16-bit PNG is scaled to 8 bits by its largest
+missing part OpenCV decodes as flat grey) is refused; a 16-bit PNG is scaled to 8 bits by its largest
 sample (OpenCV's 8-bit read keeps the high byte: 12-bit data would be nearly black), with a note.
+One K for both images (``--K``) needs images of one size; a ground-truth F must have rank 2 (:func:`check_rank2`).
 """
 
 from __future__ import annotations
@@ -115,8 +116,8 @@ def exif_map(orientation: int, width: int, height: int) -> np.ndarray:
 
 
 def read_user_image(path: str | Path, what: str = "image", notes: list[str] | None = None) -> np.ndarray:
-    """uint8 (H, W, 3) RGB (or (H, W) for a gray file), EXIF orientation applied; one-line error otherwise.
-    What the reading did that a user should know (a cut JPEG, 16-bit samples scaled) is added to ``notes``."""
+    """uint8 (H, W, 3) RGB (or (H, W) for a gray file), EXIF orientation applied; one-line error otherwise (a cut
+    JPEG included). What the reading did that a user should know (16-bit samples scaled) is added to ``notes``."""
     import cv2
 
     path = Path(path)
@@ -131,6 +132,9 @@ def read_user_image(path: str | Path, what: str = "image", notes: list[str] | No
     if header is not None and header.width * header.height > MAX_IMAGE_PIXELS:
         raise FvizError(f"{what} {path}: {header.width}x{header.height} pixels, more than fviz decodes "
                         f"({MAX_IMAGE_PIXELS // 1_000_000} megapixels): downscale it first")
+    if header is not None and not header.complete:
+        raise FvizError(f"{what} {path}: the JPEG file is cut short (no end marker, {path.stat().st_size} bytes): OpenCV "
+                        "would decode the part after the cut as flat grey; copy or download it again")
     if header is not None and header.bits == 16:
         img = cv2.imread(str(path), cv2.IMREAD_ANYDEPTH | cv2.IMREAD_ANYCOLOR)
         if img is not None and img.dtype == np.uint16:
@@ -143,22 +147,43 @@ def read_user_image(path: str | Path, what: str = "image", notes: list[str] | No
         img = cv2.imread(str(path), cv2.IMREAD_COLOR)  # applies the EXIF orientation
     if img is None or img.size == 0:
         raise FvizError(f"{what} {path}: unreadable or not an image OpenCV can decode")
-    if header is not None and not header.complete:
-        notes.append(f"{what} {path.name}: the JPEG file is cut short (no end marker): the part after the cut is "
-                     "decoded as flat grey, where no feature is found")
     if (img[..., 0] == img[..., 1]).all() and (img[..., 1] == img[..., 2]).all():
         return img[..., 0].copy()
     return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+
+
+def read_text(path: str | Path, what: str, encoding: str = "utf-8") -> str:
+    """A text file's content; a binary file (a MATLAB .mat, an HDF5 or NumPy file, anything that is not UTF-8 text)
+    is a one-line error naming ``what`` and the file and saying what it is, before any work."""
+    path = Path(path)
+    try:
+        raw = path.read_bytes()
+    except FileNotFoundError:
+        raise FvizError(f"{what} {path}: no such file") from None
+    except OSError as exc:
+        raise FvizError(f"{what} {path}: cannot read it ({exc.strerror or exc})") from None
+    if raw[:10] == b"MATLAB 5.0" or (raw[:4] == b"\x89HDF" and path.suffix.lower() == ".mat"):
+        raise FvizError(f"{what} {path}: a MATLAB .mat file, not text: export its numbers as text (MATLAB: writematrix(X, "
+                        "'x.txt', 'Delimiter', ' '); Python: numpy.savetxt of scipy.io.loadmat's array)")
+    kind = ("an HDF5 file" if raw[:4] == b"\x89HDF" else "a NumPy file" if raw[:6] == b"\x93NUMPY" or raw[:4] == b"PK\x03\x04"
+            else None)
+    if kind is None:
+        try:
+            text = raw.decode(encoding)
+        except UnicodeDecodeError as exc:
+            raise FvizError(f"{what} {path}: not UTF-8 text (at byte {exc.start}): a binary file, or another encoding") from None
+        else:
+            if "\x00" not in text:
+                return text
+            kind = "a binary file (NUL bytes)"
+    raise FvizError(f"{what} {path}: {kind}, not a text file of numbers")
 
 
 def parse_numbers(text: str, counts: tuple[int, ...], what: str) -> np.ndarray:
     """Numbers separated by commas or spaces, or a file holding them; exactly one of ``counts`` of them."""
     source = text
     if not _looks_numeric(text) and Path(text).is_file():
-        try:
-            source = Path(text).read_text()
-        except (OSError, UnicodeDecodeError) as exc:
-            raise FvizError(f"{what} {text}: cannot read it ({exc})") from None
+        source = read_text(text, what)
     try:
         values = np.array([float(v) for v in source.replace(",", " ").split()], float)
     except ValueError:
@@ -193,16 +218,27 @@ def parse_K(text: str, what: str) -> np.ndarray:
 
 
 def pose_matrix(values: np.ndarray, what: str) -> np.ndarray:
-    """12 (3x4) or 16 (4x4) row-major numbers -> (4, 4) T, with R checked to be a rotation."""
+    """12 (3x4) or 16 (4x4) row-major numbers -> (4, 4) T, with R checked to be a rotation and a 4x4's last row
+    0 0 0 1 (a column-major, i.e. transposed, T is named as such)."""
+    values = np.asarray(values, float).ravel()
     T = np.eye(4)
-    T[:3] = np.asarray(values, float).reshape(-1, 4)[:3]
+    T[:3] = values.reshape(-1, 4)[:3]
+    if len(values) == 16 and np.isfinite(values).all() and not np.allclose(values[12:], [0, 0, 0, 1], atol=1e-9):
+        transposed = np.allclose(values[3::4][:3], 0, atol=1e-9) and abs(values[15] - 1) < 1e-9
+        raise FvizError(f"{what}: the last row of a 4x4 T is {' '.join(f'{v:g}' for v in values[12:])}, not 0 0 0 1"
+                        + (": the matrix is transposed (column-major); give it row by row" if transposed else ""))
     with np.errstate(over="ignore", invalid="ignore"):
         finite = np.isfinite(T).all() and np.isfinite(np.linalg.norm(T[:3, 3]))
     if not finite:
         raise FvizError(f"{what}: its translation is not a finite number of metres (too large to compute with)")
     R = T[:3, :3]
     if np.abs(R @ R.T - np.eye(3)).max() > 1e-3 or np.linalg.det(R) < 0:
-        raise FvizError(f"{what}: its 3x3 part is not a rotation (R R^T != I)")
+        hint = ""
+        if len(values) == 12:  # the 3x4 written column by column (4 rows of 3)?
+            Rt = values.reshape(4, 3)[:3].T
+            if np.abs(Rt @ Rt.T - np.eye(3)).max() <= 1e-3 and np.linalg.det(Rt) > 0:
+                hint = ": its numbers are the 3x4 T column by column (transposed); give it row by row"
+        raise FvizError(f"{what}: its 3x3 part is not a rotation (R R^T != I){hint}")
     return T
 
 
@@ -214,7 +250,24 @@ def parse_F(text: str, what: str = "--F-gt") -> np.ndarray:
     F = parse_numbers(text, (9,), what).reshape(3, 3)
     if not is_valid(F):
         raise FvizError(f"{what}: all zero")
-    return normalize(F / np.abs(F).max(), "fbn")  # scaled first: a norm of subnormal entries (1e-320) underflows
+    # scaled first: a norm of subnormal entries (1e-320) underflows
+    return normalize(check_rank2(F / np.abs(F).max(), what), "fbn")
+
+
+RANK2_TOLERANCE = 1e-3  # s3 / s2 of a fundamental matrix above this: rank 3, not an F (a typed F of 4 digits stays below)
+
+
+def check_rank2(F: np.ndarray, what: str) -> np.ndarray:
+    """F itself when it has rank 2 (its smallest singular value at most RANK2_TOLERANCE of the middle one); a
+    one-line error naming ``what`` otherwise: a rank-3 matrix has no epipoles and is no F, and fviz does not
+    project it to rank 2 behind the user's back (scores would then be of another matrix)."""
+    s = np.linalg.svd(np.asarray(F, float), compute_uv=False)
+    if not s[1] > 0:
+        raise FvizError(f"{what}: rank {int((s > 0).sum())} (singular values {s[0]:.3g}, {s[1]:.3g}, {s[2]:.3g}): an F has rank 2")
+    if s[2] > RANK2_TOLERANCE * s[1]:
+        raise FvizError(f"{what}: rank 3 (singular values {s[0]:.3g}, {s[1]:.3g}, {s[2]:.3g}): an F has rank 2; project it "
+                        "first (U diag(s1, s2, 0) V^T of its SVD) if that is what you mean")
+    return F
 
 
 def rotation_map(k: int, width: int, height: int) -> np.ndarray:
@@ -261,7 +314,7 @@ def rotated(image: np.ndarray, K: np.ndarray | None, k: int) -> tuple[np.ndarray
 
 def make_pair(pid: PairId, path_a: Path, path_b: Path, K_a=None, K_b=None, T_ab=None, F_gt=None,
               rot: tuple[int, int] = (0, 0), gt_accuracy_px: float | None = None, what: str = "pair",
-              what_K: tuple[str, str] | None = None, what_images: str | None = None) -> Pair:
+              what_K: tuple[str, str] | None = None, what_images: str | None = None, shared_K: str | None = None) -> Pair:
     """Read both images and build the Pair; ``rot`` turns them (and their cameras and F) as SuperGlue does.
     ``what_K``: where each K came from (a flag, a file's line), named when its principal point lies outside its image.
     The same file twice is refused; two files with identical pixels get a note."""
@@ -271,18 +324,24 @@ def make_pair(pid: PairId, path_a: Path, path_b: Path, K_a=None, K_b=None, T_ab=
     notes: list[str] = []
     image_a, image_b = read_user_image(path_a, "image a", notes), read_user_image(path_b, "image b", notes)
     return pair_of_arrays(pid, image_a, image_b, K_a, K_b, T_ab, F_gt, rot, gt_accuracy_px, what,
-                          extra={"path_a": str(path_a), "path_b": str(path_b), "rot": tuple(rot)}, what_K=what_K, notes=notes)
+                          extra={"path_a": str(path_a), "path_b": str(path_b), "rot": tuple(rot)}, what_K=what_K, notes=notes,
+                          shared_K=shared_K)
 
 
 def pair_of_arrays(pid: PairId, image_a: np.ndarray, image_b: np.ndarray, K_a=None, K_b=None, T_ab=None, F_gt=None,
                    rot: tuple[int, int] = (0, 0), gt_accuracy_px: float | None = None, what: str = "pair",
                    extra: dict | None = None, what_K: tuple[str, str] | None = None,
-                   notes: list[str] | None = None) -> Pair:
+                   notes: list[str] | None = None, shared_K: str | None = None) -> Pair:
     """The Pair of two decoded images (uint8, (H, W) or (H, W, 3) RGB) and what is known of their geometry
     (see :func:`ground_truth`); ``rot`` turns them (and their cameras and F) as SuperGlue does. ``what_K``: where
     each K came from (a flag, a file's line), named when its principal point lies outside its image; ``notes``:
-    what reading the images found (a cut JPEG, 16-bit samples)."""
+    what reading the images found (16-bit samples); ``shared_K``: the argument that gave one K for both images (then
+    of one size: a K is of one resolution)."""
     notes = list(notes or [])
+    if shared_K and image_a.shape[:2] != image_b.shape[:2]:
+        raise FvizError(f"{shared_K}: one K for both images, but image a is {image_a.shape[1]}x{image_a.shape[0]} and "
+                        f"image b {image_b.shape[1]}x{image_b.shape[0]}: a K holds for one resolution; give each image its "
+                        f"own K ({'--K-a and --K-b' if shared_K.startswith('--') else 'K_a and K_b'})")
     gt = ground_truth(K_a, K_b, T_ab, F_gt, what)
     if image_a.ndim != image_b.ndim:
         import cv2
@@ -326,4 +385,5 @@ def two_images(image_a: str, image_b: str, K: str | None = None, K_a: str | None
     if pa.name == pb.name:
         pid = PairId("images", "", "pair", 0, 1, root="", image_a=str(pa), image_b=str(pb))
     return make_pair(pid, pa, pb, Ka, Kb, parse_T(T_ab) if T_ab else None, parse_F(F_gt) if F_gt else None,
-                     what="--T-ab/--F-gt", what_K=("--K", "--K") if K else ("--K-a", "--K-b"), what_images="--image-a/--image-b")
+                     what="--T-ab/--F-gt", what_K=("--K", "--K") if K else ("--K-a", "--K-b"), what_images="--image-a/--image-b",
+                     shared_K="--K" if K else None)

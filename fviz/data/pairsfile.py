@@ -68,12 +68,9 @@ def read_pairs(path: str | Path) -> list[PairLine]:
     path = Path(path)
     if path.is_dir():
         raise FvizError(f"--pairs {path}: a folder, not a pairs file")
-    try:
-        text = path.read_text(encoding="utf-8-sig")  # a byte-order mark some editors write is not part of a name
-    except FileNotFoundError:
-        raise FvizError(f"--pairs {path}: no such file") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise FvizError(f"--pairs {path}: cannot read it ({getattr(exc, 'strerror', None) or exc})") from None
+    from fviz.data.images import read_text
+
+    text = read_text(path, "--pairs", "utf-8-sig")  # a byte-order mark some editors write is not part of a name
     out = []
     for n, raw in enumerate(text.splitlines(), 1):
         fields = raw.split("#", 1)[0].split()

@@ -601,11 +601,48 @@ def prepare(config: RunConfig) -> RunConfig:
     replace(config.options, names=tuple(n for n in names if not is_run_baseline(n))).estimators()
     config.options.feature_config()
     config.selection.source().pair_ids()
+    config = _without_oracles_if_no_gt(config)
     missing = [n for n in names if is_run_baseline(n) and n not in config.baseline_F]
     if missing:
         fixed = {n: tuple(float(v) for v in baseline_fundamental(config.selection, n).ravel()) for n in missing}
         config = replace(config, baseline_F={**config.baseline_F, **fixed})
     return config
+
+
+def known_without_gt(source) -> bool:
+    """Whether no pair of ``source`` has ground truth, known without reading an image: a pairs file of names only,
+    two images without --T-ab / --F-gt (and no --gt-matches)."""
+    from fviz.data.pairsfile import PairsSource
+    from fviz.data.sources import TwoImagesSource, WithCorrespondences
+
+    if isinstance(source, WithCorrespondences):
+        if source.gt_matches is not None:
+            return False
+        source = source.source
+    if isinstance(source, PairsSource):
+        return all(source.lines[pid.frame_a].T is None for pid in source.pair_ids())
+    if isinstance(source, TwoImagesSource):
+        return source.pair0.F_gt is None
+    return False
+
+
+def _without_oracles_if_no_gt(config: RunConfig) -> RunConfig:
+    """A threshold sweep's per-pair oracles (``NAME@oracle``) pick a threshold by the ground truth: on a selection
+    without any, they are left out with a note (an error when nothing else is left)."""
+    from fviz.estimators.sweep import ORACLE, split_threshold
+
+    names = config.options.names
+    oracles = [n for n in names if (split_threshold(n)[1] or "").startswith(ORACLE)]
+    if not oracles or not known_without_gt(config.selection.source()):
+        return config
+    why = "picks each pair's threshold by its ground truth, and no pair of the selection has one"
+    rest = tuple(n for n in names if n not in oracles)
+    if not rest:
+        raise FvizError(f"--estimator {oracles[0]}: {why}")
+    import sys
+
+    print(f"note: {', '.join(oracles)} left out: the per-pair oracle {why}", file=sys.stderr)
+    return replace(config, options=replace(config.options, names=rest))
 
 
 def resolve_estimators(config: RunConfig) -> list[tuple[str, Callable]]:
