@@ -401,15 +401,10 @@ def inspect_pair(
 
 def pair_fingerprint(pair: Pair) -> tuple:
     """(name, sizes, digest of the pixels and the ground truth) of a pair: what ties a result to its pair."""
-    import hashlib
+    from fviz.digest import array_digest
 
-    h = hashlib.blake2b(digest_size=16)
-    for a in (pair.image_a, pair.image_b, pair.F_gt):
-        if a is not None:
-            a = np.ascontiguousarray(a)
-            h.update(repr((a.dtype.str, a.shape)).encode())
-            h.update(a.data)  # no copy
-    return pair.id.name, tuple(pair.size_a), tuple(pair.size_b), h.hexdigest()
+    return (pair.id.name, tuple(pair.size_a), tuple(pair.size_b),
+            array_digest(*(a for a in (pair.image_a, pair.image_b, pair.F_gt) if a is not None)))
 
 
 def check_result_of(pair: Pair, result: Any) -> None:

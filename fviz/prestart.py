@@ -21,7 +21,7 @@ _started: list[tuple] = []  # (process, connection) of workers started before a 
 
 
 def spawn_worker(preload: tuple[str, ...] = WORKER_PRELOAD, fork: bool = False) -> tuple:
-    """(process, connection) of a new worker (:func:`fviz.run.execute._worker_main`): one BLAS/OpenMP thread,
+    """(process, connection) of a new worker (:func:`fviz.run.worker.worker_main`): one BLAS/OpenMP thread,
     Ctrl-C and SIGTERM ignored (the main process's business), dying with this process. ``fork``: a fork of
     this process (no new interpreter to start), safe only while it has one thread and nothing heavy imported
     (:func:`prestart`); else a fresh interpreter (spawn)."""
@@ -41,9 +41,9 @@ def _entry(conn, parent_pid: int, preload: tuple[str, ...], inherited: tuple[int
     for fd in inherited:  # a fork's copies of the main process's ends: the pipes close when the main process's do
         with contextlib.suppress(OSError):
             os.close(fd)
-    from fviz.run.execute import _worker_main
+    from fviz.run.worker import worker_main
 
-    _worker_main(conn, parent_pid, preload)
+    worker_main(conn, parent_pid, preload)
 
 
 def command_of(argv: list[str]) -> str | None:

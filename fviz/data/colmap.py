@@ -356,10 +356,10 @@ class ColmapSource:
 
     def input_digest(self, pid: PairId) -> str:
         """The pair's two registered images as the model holds them (names, cameras, poses)."""
-        from fviz.data.sources import _digest_of
+        from fviz.digest import digest_of
 
         va, vb = self.views[pid.frame_a], self.views[pid.frame_b]
-        return _digest_of(va.name, va.K, va.T, vb.name, vb.K, vb.T)
+        return digest_of(va.name, va.K, va.T, vb.name, vb.K, vb.T)
 
     def inspect_args(self, pid: PairId) -> list[str]:
         args = ["--colmap", str(self.model), "--images", str(self.images),

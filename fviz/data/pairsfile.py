@@ -149,10 +149,10 @@ class PairsSource:
 
     def input_digest(self, pid: PairId) -> str:
         """The pair's line as read (names, rotations, cameras, pose): an edited line is another pair's input."""
-        from fviz.data.sources import _digest_of
+        from fviz.digest import digest_of
 
         p = self.lines[pid.frame_a]
-        return _digest_of(p.name0, p.name1, p.rot, p.K0, p.K1, p.T)
+        return digest_of(p.name0, p.name1, p.rot, p.K0, p.K1, p.T)
 
     def inspect_args(self, pid: PairId) -> list[str]:
         return ["--pairs", str(self.path), "--images", str(self.images), "--index", str(pid.frame_a)]

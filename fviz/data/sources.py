@@ -7,6 +7,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from fviz.data.pair import Pair, PairId
+from fviz.digest import digest_of, file_digest
 from fviz.errors import FvizError
 
 COLMAP_MIN_SHARED = 100
@@ -51,7 +52,7 @@ class TwoImagesSource:
 
     def input_digest(self, pid: PairId) -> str:
         p = self.pair0
-        return _digest_of(*(getattr(p, k, None) for k in ("F_gt", "K_a", "K_b", "R", "t")))
+        return digest_of(*(getattr(p, k, None) for k in ("F_gt", "K_a", "K_b", "R", "t")))
 
     def inspect_args(self, pid: PairId) -> list[str]:
         image_a, image_b, gt = self.args
@@ -85,7 +86,7 @@ class WithCorrespondences:
 
     def input_digest(self, pid: PairId) -> str:
         inner = getattr(self.source, "input_digest", None)
-        return _digest_of(inner(pid) if inner else None, *(reader_digest(r, pid) for r in (self.matches, self.gt_matches)))
+        return digest_of(inner(pid) if inner else None, *(reader_digest(r, pid) for r in (self.matches, self.gt_matches)))
 
     def inspect_args(self, pid: PairId) -> list[str]:
         extra = [*(["--matches", str(self.matches.path)] if self.matches else []),
@@ -115,48 +116,6 @@ def attach(pair: Pair, matches, gt_matches) -> Pair:
 
 # ------------------------------------------------------------------------------ what a record's fingerprint covers
 
-_FILE_DIGESTS: dict[tuple, str] = {}
-
-
-def _digest_of(*parts) -> str:
-    """A short digest of numbers, arrays, strings (None included as such)."""
-    import hashlib
-
-    import numpy as np
-
-    h = hashlib.sha256()
-    for part in parts:
-        if part is None:
-            h.update(b"\x00none")
-        elif isinstance(part, (str, bytes)):
-            h.update(b"\x01" + (part.encode() if isinstance(part, str) else part))
-        else:
-            a = np.ascontiguousarray(np.asarray(part, dtype=np.float64))
-            h.update(b"\x02" + repr(a.shape).encode() + a.tobytes())
-    return h.hexdigest()[:20]
-
-
-def file_digest(path: str | Path) -> str:
-    """sha256 of a file's bytes (computed once per file version in this process); "missing" when unreadable."""
-    import hashlib
-    import os
-
-    try:
-        st = os.stat(path)
-    except OSError:
-        return "missing"
-    key = (str(Path(path).resolve()), st.st_size, st.st_mtime_ns, st.st_ino)
-    if key not in _FILE_DIGESTS:
-        h = hashlib.sha256()
-        try:
-            with open(path, "rb") as f:
-                for chunk in iter(lambda: f.read(1 << 20), b""):
-                    h.update(chunk)
-        except OSError:
-            return "missing"
-        _FILE_DIGESTS[key] = h.hexdigest()[:20]
-    return _FILE_DIGESTS[key]
-
 
 def reader_digest(reader, pid: PairId) -> str | None:
     """The content of the correspondences file(s) ``reader`` takes the pair ``pid`` from: its own file in a
@@ -165,22 +124,16 @@ def reader_digest(reader, pid: PairId) -> str | None:
         return None
     path = Path(reader.path)
     if getattr(reader, "features", None) is not None:  # hloc: matches.h5 and the features file beside it
-        return _digest_of(file_digest(path), file_digest(reader.features))
+        return digest_of(file_digest(path), file_digest(reader.features))
     if not path.is_dir():
         return file_digest(path)
     pattern = getattr(reader, "pattern", None) or "{stem0}_{stem1}_matches.npz"
     if pid.image_a and pid.image_b:
         stems = (Path(pid.image_a).stem, Path(pid.image_b).stem)
         names = [pattern.format(stem0=stems[0], stem1=stems[1]), pattern.format(stem0=stems[1], stem1=stems[0])]
-        return _digest_of(*(f"{n}:{file_digest(path / n)}" for n in names))
+        return digest_of(*(f"{n}:{file_digest(path / n)}" for n in names))
     if getattr(reader, "_folder_digest", None) is None:  # once per reader: a KITTI run asks it for every pair
-        reader._folder_digest = _digest_of(*(f"{p.name}:{file_digest(p)}" for p in sorted(path.iterdir()) if p.is_file()))
+        reader._folder_digest = digest_of(*(f"{p.name}:{file_digest(p)}" for p in sorted(path.iterdir()) if p.is_file()))
     return reader._folder_digest
 
 
-def input_digests(source, pids) -> dict[str, str]:
-    """Pair name -> :func:`digest <reader_digest>` of its inputs, for the sources that have one (user sources)."""
-    fn = getattr(source, "input_digest", None)
-    if fn is None:
-        return {}
-    return {pid.name: d for pid in pids if (d := fn(pid)) is not None}

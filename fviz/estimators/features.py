@@ -8,6 +8,7 @@ from typing import Callable
 import numpy as np
 
 from fviz.errors import FvizError
+from fviz.estimators.keypoints import Features, Matches  # noqa: F401 (re-exported)
 
 from fviz.estimators.learned import LEARNED, is_learned
 
@@ -32,34 +33,6 @@ class FeatureConfig:
             raise FvizError(f"--ratio {self.ratio}: must be in (0, 1]")
         if self.max_keypoints < 8:
             raise FvizError(f"--max-keypoints {self.max_keypoints}: must be >= 8")
-
-
-@dataclass
-class Features:
-    """keypoints: (N, 2) float64 pixels; descriptors: (N, D); scores: (N,) the detector's responses, or None;
-    image_digest: the pixels' digest when a run's feature cache asked for it (taken while they are decoded);
-    image_size: (width, height) of the image (learned matchers need it; hloc's features.h5 keeps it)."""
-
-    keypoints: np.ndarray
-    descriptors: np.ndarray | None
-    scores: np.ndarray | None = None
-    image_digest: str | None = None
-    image_size: tuple[int, int] | None = None
-
-
-@dataclass
-class Matches:
-    """idx: (M, 2) indices into (features_a, features_b); x_a, x_b: (M, 2) pixels; distance: (M,).
-    scores: (M,) the matcher's own confidence of a user's matches (``--matches``), else None."""
-
-    idx: np.ndarray
-    x_a: np.ndarray
-    x_b: np.ndarray
-    distance: np.ndarray
-    scores: np.ndarray | None = None
-
-    def __len__(self) -> int:
-        return len(self.idx)
 
 
 def user_matches(c) -> Matches:

@@ -204,7 +204,7 @@ def _tensor(image: np.ndarray):
 def detect_many(images: list[np.ndarray], kind: str, max_keypoints: int) -> list:
     """Features of several uint8 images (gray or RGB), those of one size in one batch (on the GPU when there
     is one)."""
-    from fviz.estimators.features import Features
+    from fviz.estimators.keypoints import Features
 
     require(kind)
     import torch
@@ -245,7 +245,7 @@ def _disk_features(batch, max_keypoints: int):
 def match(fa, fb, kind: str):
     """Matches of two images' learned features, best first; ``scores`` the matcher's confidences and
     ``distance`` 1 - score."""
-    from fviz.estimators.features import Matches
+    from fviz.estimators.keypoints import Matches
 
     empty = Matches(np.zeros((0, 2), int), np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0), np.zeros(0))
     if fa.descriptors is None or fb.descriptors is None or len(fa.keypoints) < 2 or len(fb.keypoints) < 2:

@@ -31,7 +31,8 @@ frames; the main process keeps only file offsets of results.jsonl and per-metric
 """
 
 from fviz.run.config import RunConfig, Selection, parse_shard
-from fviz.run.execute import PairEvaluator, run_eval
+from fviz.run.evaluator import PairEvaluator
+from fviz.run.execute import run_eval
 from fviz.run.reports import log_summary_pair, merge_runs, write_reports
 from fviz.run.store import ResultStore, read_config, result_from_record
 

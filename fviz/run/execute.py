@@ -7,151 +7,25 @@ import contextlib
 import os
 import sys
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, Callable
 
 from fviz.data.pair import PairId
 from fviz.atomic import WriteError
 from fviz.errors import FvizError
-from fviz.evaluate import MIN_MATCHES, too_few_matches
 from fviz.prestart import WORKER_PRELOAD
-from fviz.run.config import MIN_PAIRS_PER_WORKER, RESULTS_FILE, RunConfig, prepare, resolve_estimators
+from fviz.run.evaluator import CACHE_FRESH, CACHE_NOTES, PairEvaluator, PairTask, error_message, new_record
+from fviz.run.config import MIN_PAIRS_PER_WORKER, RESULTS_FILE, RunConfig, prepare
 from fviz.run.hloc_cache import CacheWriter
 from fviz.run.reports import write_reports
+from fviz.run.worker import DEEP_PRELOAD
 from fviz.run.store import (
-    ResultStore, RunOutcome, locked, merge_record, payload_path, read_config, read_records, save_payload,
+    ResultStore, RunOutcome, locked, merge_record, payload_path, read_config, read_records,
     write_config,
 )
 
 
-CACHE_FRESH, CACHE_NOTES = "_cache_fresh", "_cache_notes"  # a record's keys the main process takes off
-
-
-def _message(exc: BaseException) -> str:
-    text = " ".join(str(exc).split())
-    return text if isinstance(exc, FvizError) else f"{type(exc).__name__}: {text}"
-
-
-def _record(config: RunConfig, index: int, pid: PairId) -> dict[str, Any]:
-    """A results.jsonl record before evaluation (``error`` and ``result`` still empty)."""
-    ref = pid.to_dict()
-    return {"index": index, "key": pid.name, "ref": ref, "fingerprint": config.fingerprint(ref),
-            "estimators": config.estimator_names(), "error": None, "result": None}
-
-
-class PairEvaluator:
-    """Evaluates pairs of one run, keeping features of recent frames (one per worker process)."""
-
-    def __init__(self, config: RunConfig, out_dir: Path, detect_threads: int = 2, batched: tuple[str, ...] = ()):
-        from fviz.estimators.features import FeatureCache
-        from fviz.diagnose import diagnose
-        from fviz.run.hloc_cache import RunCache, digest
-
-        self.config, self.out_dir = config, Path(out_dir)
-        self.source = config.selection.source()
-        self.batched: dict = {}  # the current task's results of estimators run in batches elsewhere
-        self.estimators = self._resolve(config, batched)
-        self.features = config.options.feature_config()
-        self.cache = FeatureCache(self.features, max_items=config.cache_items(), threads=detect_threads,
-                                  fingerprint=digest)  # the run folder's features.h5 names the pixels
-        self.disk = RunCache(self.out_dir, self.features)  # features.h5 / matches.h5 of the run folder
-        self.cached: tuple[list, int, int] = ([], 0, 0)  # the last pair's (new cache entries, features read, matches read)
-        self.diagnose = diagnose
-
-    def _resolve(self, config: RunConfig, batched: tuple[str, ...]) -> list[tuple[str, Callable]]:
-        """The run's estimators; those in ``batched`` (display names) return the F the task brings."""
-        from dataclasses import replace
-
-        from fviz.estimators.registry import display_name
-
-        local = replace(config, options=replace(config.options, names=tuple(
-            n for n in config.options.names if display_name(n) not in batched)))
-        resolved = dict(resolve_estimators(local))
-
-        def given(name: str) -> Callable:
-            def estimate(pair, x_a, x_b):
-                F, _ = self.batched[name]
-                if isinstance(F, str):
-                    raise RuntimeError(F)
-                return F
-
-            estimate.__name__ = name
-            return estimate
-
-        return [(name, resolved[name] if name in resolved else given(name)) for name in config.estimator_names()]
-
-    def evaluate(self, pid: PairId, only: tuple[str, ...] | None = None):
-        """(Pair, PairResult) with the full payload (what inspect and triage.rrd show), of the estimators
-        named in ``only`` (display names; default all)."""
-        from fviz.evaluate import evaluate_pair
-
-        pair = self.source.load(pid)
-        estimators = [(n, fn) for n, fn in self.estimators if only is None or n in only]
-        matcher = self.disk.prepare(pair, self.cache) if pair.matches is None else None
-        result = evaluate_pair(pair, estimators, self.features, self.config.norm, self.config.eval_threshold,
-                               self.config.options.threshold, cache=self.cache, timeout=self.config.estimator_timeout,
-                               matcher=matcher)
-        self.cached = self.disk.collect(pair, self.cache) if matcher is not None else ([], 0, 0)
-        return pair, result
-
-    def record(self, index: int, pid: PairId, only: tuple[str, ...] | None = None) -> dict[str, Any]:
-        """One line of results.jsonl; never raises for a bad pair (the error is in the record)."""
-        t0, misses = time.perf_counter(), self.cache.misses
-        rec = _record(self.config, index, pid)
-        if only is not None:
-            rec["estimators"] = [n for n in rec["estimators"] if n in only]
-        try:
-            pair, result = self.evaluate(pid, only)
-            rec["result"] = result.to_dict()
-            if too_few_matches(result):
-                rec["error"] = f"only {result.n_matches} matches ({MIN_MATCHES} needed)"
-            rec["diagnostics"] = self.diagnose(pair, result, two_view=False)  # triage adds it where it lists the pair
-            if self.config.full:
-                path = payload_path(self.out_dir, index)
-                save_payload(path, result)
-                rec["payload_bytes"] = path.stat().st_size  # resume re-evaluates a pair whose payload is cut
-        except WriteError:  # a full disk is not the pair's fault: the run stops (--resume finishes it)
-            raise
-        except Exception as exc:  # one bad pair must not stop the run
-            rec["error"] = _message(exc)
-        fresh, n_features, n_matches = self.cached if rec["result"] is not None else ([], 0, 0)
-        rec.update(detections=self.cache.misses - misses, cached_features=n_features, cached_matches=n_matches,
-                   seconds=time.perf_counter() - t0, finished_at=time.time(), worker=os.getpid())
-        rec[CACHE_FRESH], rec[CACHE_NOTES] = fresh, dict(self.disk.notes)  # for the main process, not results.jsonl
-        self.cached = ([], 0, 0)
-        self.disk.notes.clear()
-        return rec
-
-    def run_task(self, task: "PairTask") -> tuple[dict[str, Any], dict]:
-        """A scheduled pair: its record and the features of ``task.keep`` it detected."""
-        self.cache.clear()
-        self.cache.put(task.given)
-        self.batched = task.batched
-        rec = self.record(task.index, task.pid, task.only)
-        for est in (rec["result"] or {}).get("estimators", []):
-            if est["name"] in task.batched:
-                est["seconds"] = task.batched[est["name"]][1]  # its share of the batch, not the look-up
-        kept = {k: f for k in task.keep if (f := self.cache.peek(k)) is not None}
-        self.cache.clear()
-        return rec, kept
-
-
-# ------------------------------------------------------------------------------ scheduling
-
-
-@dataclass
-class PairTask:
-    """One pair to evaluate with the features already detected for it (``given``); of the frames it
-    detects itself, ``keep`` are needed by later pairs and come back to the scheduler."""
-
-    index: int
-    pid: PairId
-    given: dict = field(default_factory=dict)
-    keep: tuple[str, ...] = ()
-    detects: frozenset = frozenset()
-    batched: dict = field(default_factory=dict)  # estimator name -> (F or error text, seconds), see DeepBatches
-    only: tuple[str, ...] | None = None  # the estimators to run (those the pair's record lacks); None: all
 
 
 class FrameSchedule:
@@ -258,7 +132,7 @@ class DeepBatches:
                 pair.image_a, pair.image_b  # decoded here, in parallel (decoding releases the GIL)
                 return pair
             except Exception as exc:
-                return _message(exc)
+                return error_message(exc)
 
         with ThreadPoolExecutor(4) as pool:
             loaded = list(pool.map(load, [pid for _, pid in pairs]))
@@ -283,7 +157,7 @@ class DeepBatches:
         try:
             return predict([pair])[0]
         except Exception as exc:
-            return _message(exc)
+            return error_message(exc)
 
 
 # ------------------------------------------------------------------------------ interrupts
@@ -344,77 +218,6 @@ class Interrupts:
 
 
 # ------------------------------------------------------------------------------ workers
-
-
-def _die_with_parent(parent_pid: int) -> None:
-    """Make this worker die with the process that started it (SIGKILL of the run included):
-    PR_SET_PDEATHSIG on Linux, else a thread watching the parent's pid."""
-    import signal
-
-    try:
-        import ctypes
-
-        libc = ctypes.CDLL(None, use_errno=True)
-        if libc.prctl(1, signal.SIGKILL, 0, 0, 0) != 0:  # PR_SET_PDEATHSIG
-            raise OSError(ctypes.get_errno(), "prctl")
-    except (OSError, AttributeError):
-        import threading
-
-        def watch() -> None:
-            while os.getppid() == parent_pid:
-                time.sleep(0.5)
-            os._exit(1)
-
-        threading.Thread(target=watch, daemon=True, name="parent-watch").start()
-    if os.getppid() != parent_pid:  # the parent died before prctl took effect
-        os._exit(1)
-
-
-DEEP_PRELOAD = ("torch", "fviz.models.predict", "fviz.train.checkpoint")
-
-
-def _worker_main(conn, parent_pid: int, preload: tuple[str, ...]) -> None:
-    """A worker process: import what evaluation needs while the main process prepares the run, build its
-    evaluator from the configuration it is then sent (once: estimators, a deep model), and evaluate
-    the pairs it is sent until it gets None. Ctrl-C and SIGTERM are the main process's business."""
-    import importlib
-    import signal
-
-    _die_with_parent(parent_pid)
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, signal.SIG_IGN)
-    for name in preload:
-        with contextlib.suppress(ImportError):
-            importlib.import_module(name)
-    import cv2
-
-    cv2.setNumThreads(1)  # one process per core already
-    try:
-        message = conn.recv()
-    except EOFError:
-        return
-    if message is None:
-        return
-    try:
-        config_dict, out_dir, batched = message
-        evaluator = PairEvaluator(RunConfig.from_dict(config_dict), Path(out_dir), detect_threads=1, batched=batched)
-    except Exception as exc:
-        conn.send(("failed", _message(exc)))
-        return
-    conn.send(("ready", os.getpid()))
-    while True:
-        try:
-            task = conn.recv()
-        except EOFError:
-            return
-        if task is None:
-            return
-        try:
-            result = evaluator.run_task(task)
-        except Exception as exc:  # not a bad pair (those are records), e.g. a full disk: the run stops
-            conn.send(("raised", exc))
-            return
-        conn.send(("done", result))
 
 
 class WorkerPool:
@@ -592,7 +395,7 @@ def _execute(config: RunConfig, todo: list[tuple[int, PairId]], pool: WorkerPool
                 return
             for task, rec, kept in pool.wait(timeout=0.2):
                 if rec is None:
-                    rec = {**_record(config, task.index, task.pid), "error": "the worker process evaluating this pair died",
+                    rec = {**new_record(config, task.index, task.pid), "error": "the worker process evaluating this pair died",
                            "detections": 0, "seconds": 0.0, "finished_at": time.time(), "worker": None}
                 schedule.done(task, kept)
                 on_record(rec)

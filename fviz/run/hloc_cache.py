@@ -24,7 +24,6 @@ the previous file whole. h5py is imported only when a cache is read or written.
 
 from __future__ import annotations
 
-import hashlib
 import json
 from collections import Counter
 from pathlib import Path
@@ -32,6 +31,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from fviz.digest import array_digest as digest  # noqa: F401 (re-exported: the run's image digest)
 from fviz.estimators.features import FeatureConfig, Features, Matches
 from fviz.estimators.learned import is_learned
 
@@ -46,16 +46,6 @@ DESCRIPTOR_DIMS = {"sift": (128, np.float32), "orb": (32, np.uint8), "akaze": (6
 
 # a group fviz wrote: (file, group name, {dataset: array}, {attribute: text})
 Entry = tuple[str, str, dict[str, np.ndarray], dict[str, str]]
-
-
-def digest(*arrays: np.ndarray) -> str:
-    """A digest of arrays' shapes, dtypes and bytes (an image's identity, whatever its file is called)."""
-    h = hashlib.blake2b(digest_size=16)
-    for a in arrays:
-        a = np.ascontiguousarray(a)
-        h.update(f"{a.shape}{a.dtype.str}".encode())
-        h.update(a.data)
-    return h.hexdigest()
 
 
 def settings(cfg: FeatureConfig, matching: bool) -> str:
