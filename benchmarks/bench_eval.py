@@ -188,7 +188,7 @@ def fviz_eval(args: list[str], out_dir: Path | None = None) -> tuple[float, floa
 PER_PAIR = """
 import importlib, json, sys, time
 from pathlib import Path
-from fviz.prestart import WORKER_PRELOAD
+from fviz.run.prestart import WORKER_PRELOAD
 for name in WORKER_PRELOAD:  # what a worker imports before its first pair (start-up, not per pair)
     importlib.import_module(name)
 import cv2

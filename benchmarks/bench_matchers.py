@@ -93,7 +93,7 @@ def main() -> None:
     print(f"{os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f}, {device}, max keypoints {a.max_keypoints}")
     for title, pairs in sets.items():
         print(f"\n{title}: {len(pairs)} pairs")
-        print(f"| features | s / pair | matches | px_prec@1 | @2 | @4 | epi_prec@1e-3 | AUC@10 MAGSAC++ | AUC@10 PoseLib |")
+        print("| features | s / pair | matches | px_prec@1 | @2 | @4 | epi_prec@1e-3 | AUC@10 MAGSAC++ | AUC@10 PoseLib |")
         print("|---|---|---|---|---|---|---|---|---|")
         for kind in kinds:
             r = run(pairs, kind, a.max_keypoints)

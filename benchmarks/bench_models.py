@@ -42,8 +42,8 @@ import torch
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from fviz.models import VARIANTS, FNet, count_parameters, predict_F
-from fviz.models.model import FNetConfig
+from fviz.models import VARIANTS, FNet, count_parameters, predict_F  # noqa: E402 (after sys.path: run as a script)
+from fviz.models.model import FNetConfig  # noqa: E402
 
 REF_HW = (128, 416)
 

@@ -33,14 +33,18 @@ for name, sel, cams, frames in sets:
     for f in frames:
         p = ds.load(ds.pair_id(f, kind="stereo", cams=cams))
         ga, gb = [cv2.cvtColor(np.asarray(im), cv2.COLOR_RGB2GRAY) if np.asarray(im).ndim == 3 else np.asarray(im) for im in (p.image_a, p.image_b)]
-        ka, da = sift.detectAndCompute(ga, None); kb, db = sift.detectAndCompute(gb, None)
+        ka, da = sift.detectAndCompute(ga, None)
+        kb, db = sift.detectAndCompute(gb, None)
         m = [a for a, b in cv2.BFMatcher().knnMatch(da, db, k=2) if a.distance < 0.8 * b.distance]
-        xa = np.float64([ka[x.queryIdx].pt for x in m]); xb = np.float64([kb[x.trainIdx].pt for x in m])
+        xa = np.float64([ka[x.queryIdx].pt for x in m])
+        xb = np.float64([kb[x.trainIdx].pt for x in m])
         l = (p.F_gt @ np.c_[xa, np.ones(len(xa))].T).T
         off = xb[:, 1] - (-(l[:, 0] * xb[:, 0] + l[:, 2]) / l[:, 1])
         _, mask = cv2.findFundamentalMat(xa, xb, cv2.USAC_MAGSAC, 1.0, 0.999, 10000)
         mask = mask.ravel().astype(bool)
-        inl += list(off[mask]); ev += list(off[np.abs(off) < 2]); per_pair.append(float(np.mean(off[mask])))
+        inl += list(off[mask])
+        ev += list(off[np.abs(off) < 2])
+        per_pair.append(float(np.mean(off[mask])))
     out[name] = {"pairs": len(per_pair), "magsac_inliers_mean_px": round(float(np.mean(inl)), 3), "inliers": len(inl),
                  "within_2px_mean_px": round(float(np.mean(ev)), 3), "per_pair_range_px": [round(min(per_pair), 3), round(max(per_pair), 3)]}
     print(name, out[name], flush=True)

@@ -9,7 +9,7 @@ import sys
 def main() -> None:
     import gc
 
-    from fviz.prestart import prestart
+    from fviz.run.prestart import prestart
 
     prestart(sys.argv[1:])
     from fviz.cli import main as cli_main

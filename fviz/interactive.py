@@ -17,7 +17,7 @@ as a selection (``SelectionChangeEvent``) whose item carries the entity, the ins
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 

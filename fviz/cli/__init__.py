@@ -90,7 +90,7 @@ def command_hint(argv: list[str]) -> str | None:
 
 def main() -> None:
     from fviz.errors import FvizError, Interrupted
-    from fviz.prestart import prestart, take
+    from fviz.run.prestart import prestart, take
 
     if (hint := command_hint(sys.argv[1:])) is not None:
         print(f"error: {hint}", file=sys.stderr)

@@ -99,7 +99,7 @@ def pair(
                       F_gt=F_gt, pairs=pairs, images=images, index=index, colmap=colmap, min_shared=min_shared,
                       matches=matches, gt_matches=gt_matches)
     _check_probe_by(probe_by, p, ests, features)  # before the work, as every flag
-    from fviz.prestart import import_in_background
+    from fviz.run.prestart import import_in_background
 
     import_in_background("rerun")  # ~0.5 s: it loads while the features are computed (after the inputs are checked)
     result = api.inspect_pair(p, ests, features=features, max_keypoints=max_keypoints, ratio=ratio, mutual=mutual,

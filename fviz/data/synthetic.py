@@ -364,7 +364,7 @@ def _rotation(s: torch.Tensor, c: torch.Tensor) -> torch.Tensor:
 # ------------------------------------------------------------------------------- scene sampling
 
 
-def _sample(seeds: torch.Tensor, cfg: SceneConfig, c: _Consts) -> dict[str, torch.Tensor]:
+def _sample(seeds: torch.Tensor, cfg: SceneConfig, c: _Consts) -> dict[str, torch.Tensor]:  # noqa: PLR0915 (one batched scene draw, step by step as the docstring tells it)
     """Draw the street scenes and camera pairs of ``seeds`` (B,) int64, on their device, float64.
 
     Returns planes (2 B, P, 20): per view (all a's, then all b's) the P rectangles it needs, as

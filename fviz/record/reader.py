@@ -301,7 +301,7 @@ def text(path: str | Path, entity: str) -> list[str]:
 # --------------------------------------------------------------------------------------------- summary
 
 
-def read_recording(path: str | Path, timeline: str | None = None) -> RecordingSummary:
+def read_recording(path: str | Path, timeline: str | None = None) -> RecordingSummary:  # noqa: C901 (one pass over the chunks, a branch per entity kind)
     """Summarize a recording: app id, timelines, items (pair name, metrics, errors per index), blueprint,
     entity paths.  timeline: the index timeline of the items (default :func:`main_timeline`)."""
     p = Path(path)

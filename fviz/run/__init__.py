@@ -30,13 +30,19 @@ Memory: a worker loads one pair at a time; the schedule holds features of a boun
 frames; the main process keeps only file offsets of results.jsonl and per-metric floats for the summary.
 """
 
-from fviz.run.config import RunConfig, Selection, parse_shard
-from fviz.run.evaluator import PairEvaluator
-from fviz.run.execute import run_eval
-from fviz.run.reports import log_summary_pair, merge_runs, write_reports
-from fviz.run.store import ResultStore, read_config, result_from_record
+_EXPORTS = {
+    "RunConfig": "config", "Selection": "config", "parse_shard": "config", "PairEvaluator": "evaluator",
+    "run_eval": "execute", "log_summary_pair": "reports", "merge_runs": "reports", "write_reports": "reports",
+    "ResultStore": "store", "read_config": "store", "result_from_record": "store",
+}
+__all__ = sorted(_EXPORTS)
 
-__all__ = [
-    "PairEvaluator", "ResultStore", "RunConfig", "Selection", "log_summary_pair", "merge_runs",
-    "parse_shard", "read_config", "result_from_record", "run_eval", "write_reports",
-]
+
+def __getattr__(name: str):
+    """The run's public names, imported on first use: ``fviz.run.prestart`` starts workers before anything heavy
+    is imported, and importing it must not import the rest of the run."""
+    if name in _EXPORTS:
+        import importlib
+
+        return getattr(importlib.import_module(f"fviz.run.{_EXPORTS[name]}"), name)
+    raise AttributeError(f"module 'fviz.run' has no attribute {name!r}")

@@ -14,7 +14,7 @@ from typing import Any, Callable
 from fviz.data.pair import PairId
 from fviz.atomic import WriteError
 from fviz.errors import FvizError
-from fviz.prestart import WORKER_PRELOAD
+from fviz.run.prestart import WORKER_PRELOAD
 from fviz.run.evaluator import CACHE_FRESH, CACHE_NOTES, PairEvaluator, PairTask, error_message, new_record
 from fviz.run.config import MIN_PAIRS_PER_WORKER, RESULTS_FILE, RunConfig, prepare
 from fviz.run.hloc_cache import CacheWriter
@@ -228,12 +228,12 @@ class WorkerPool:
     isolating = False  # True: one worker for a small run, so that a crash in a user's estimator fails only its pair
 
     def __init__(self, n: int, preload: tuple[str, ...] = WORKER_PRELOAD):
-        from fviz import prestart
+        from fviz.run import prestart
 
         self.preload = preload
         self.setup: tuple | None = None
         self.tasks: dict[int, PairTask] = {}  # worker slot -> its running task
-        self.workers = prestart.take(n)  # those the command line started (fviz.prestart; a deep model loads later)
+        self.workers = prestart.take(n)  # those the command line started (fviz.run.prestart; a deep model loads later)
         self.workers += [self._start() for _ in range(n - len(self.workers))]
         self._ready = [False] * n
 
@@ -241,7 +241,7 @@ class WorkerPool:
         return len(self.workers)
 
     def _start(self):
-        from fviz.prestart import spawn_worker
+        from fviz.run.prestart import spawn_worker
 
         proc, parent = spawn_worker(self.preload)  # workers start with Ctrl-C ignored
         if self.setup is not None:
@@ -310,7 +310,7 @@ class WorkerPool:
 def start_pool(config: RunConfig, workers: int, n_pairs: int) -> WorkerPool | None:
     """Worker processes for a run of ``n_pairs``, started before the run is prepared so that their
     imports overlap the main process's; None when one process does it (see :func:`pool_size`)."""
-    from fviz import prestart
+    from fviz.run import prestart
 
     from fviz.estimators.registry import is_user_spec
 
@@ -500,7 +500,7 @@ def _run_eval(config: RunConfig, out_dir: str | Path, workers: int | None = None
 
 def _preload_reports() -> None:
     """Import what the reports need in a thread while the pairs are evaluated (not after)."""
-    from fviz.prestart import import_in_background
+    from fviz.run.prestart import import_in_background
 
     import_in_background("pyarrow.parquet", "rerun", "rerun.blueprint", "fviz.record.writer", "rich.console", "rich.table")
 

@@ -24,7 +24,7 @@ def _name(tp) -> str:
         tp, getattr(tp, "__name__", str(tp)))
 
 
-def convert(value: Any, tp, where: str) -> Any:
+def convert(value: Any, tp, where: str) -> Any:  # noqa: C901 (one branch per annotation kind; issue 41: one validator for run.json, recipes, records)
     """``value`` checked against the annotation ``tp`` (lists become tuples where ``tp`` says tuple);
     raises FvizError ``WHERE is ..., expected ...``."""
     origin, args = typing.get_origin(tp), typing.get_args(tp)

@@ -1,4 +1,4 @@
-"""A worker process of a run's pool (started by :mod:`fviz.prestart`): it dies with its parent, imports what
+"""A worker process of a run's pool (started by :mod:`fviz.run.prestart`): it dies with its parent, imports what
 evaluation needs, builds its :class:`fviz.run.evaluator.PairEvaluator` from the configuration it is sent and
 evaluates the tasks it is sent until it gets None."""
 

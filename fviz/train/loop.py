@@ -577,7 +577,7 @@ def versus_constants(metrics: dict[str, float], what: str = "validation") -> str
     return f"{head}: {what} median SED {metrics['sed_px']:.4g} px vs {figures}"
 
 
-def train(
+def train(  # noqa: C901, PLR0915 (issue 41: to split into losses / state / curves / loop)
     recipe: Recipe | str | Path,
     *,
     resume: bool = False,
