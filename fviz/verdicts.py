@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fviz.diagnose import STATIC_FRACTION
+from fviz.evidence import STATIC_FRACTION
 from fviz.evaluate import EVAL_THRESHOLD_PX, GT_NAME
 from fviz.geometry import NSGD_RECALL_THRESHOLD
 
