@@ -251,8 +251,9 @@ def gt_suspect(diag: dict[str, Any] | None, estimators: list[dict[str, Any]]) ->
 
     Cheaper explanations first: never when the user's inputs explain the misfit (:func:`input_mistake`: swapped or
     rescaled matches, a K for another image), nor when the ground truth has a tight consensus of its own among the
-    matches (:func:`gt_own_consensus`: two consistent sets, a matcher fooled by repeated texture). Evidence only from fits with redundancy: an estimator that fits the
-    matches and finds a consensus (inlier ratio >= GT_SUSPECT_INLIER_RATIO) of at least MIN_EVIDENCE inliers (F's 7
+    matches (:func:`gt_own_consensus`: two consistent sets, a matcher fooled by repeated texture). Evidence only from
+    fits with redundancy: a robust estimator (:func:`is_robust`: not 7- or 8-point, whose least-squares F is pulled by
+    every outlier) that finds a consensus (inlier ratio >= GT_SUSPECT_INLIER_RATIO) of at least MIN_EVIDENCE inliers (F's 7
     degrees of freedom and MIN_SPARE spare), measured out of sample (``sed_median_heldout``: :func:`heldout_sed`),
     never by its own fit's residuals (zero through 8 points whatever the points). The ground truth is suspect only
     when it explains those inliers worse than the held-out refits do: F_gt's median SED above GT_SUSPECT_RATIO times

@@ -106,7 +106,8 @@ def test_compare_md_holding_another_comparison_is_not_replaced_silently(runs, tm
     r = run_fviz("compare", "--out-dir", tmp_path, "--a", "8point", "--b", "magsac", "--force")
     assert r.returncode == 0 and f"{md} (replaced the previous version)" in r.stderr
     assert md.read_text() == (tmp_path / "other.md").read_text()
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["compare.md", "compare.rrd", "metrics.csv", "other.md", "other.rrd"]  # no temporaries left
+    # no temporaries left
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["compare.md", "compare.rrd", "metrics.csv", "other.md", "other.rrd"]
 
 
 @pytest.mark.parametrize("args, fragment", [

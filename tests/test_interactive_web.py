@@ -134,7 +134,8 @@ def click_keypoint(b: Chromium, page: Page, j: int, fs) -> dict:
     more estimator colour in image b (screenshots polled: each takes a good part of that on software GL)."""
     before = colored_in_b(shot(b), page, fs.size_b)
     b.evaluate("window.fviz.t_received = null; window.fviz.t_press = null; "
-                "document.addEventListener('pointerdown', () => { window.fviz.t_press = performance.now(); }, {once: true, capture: true}); 0")
+                "document.addEventListener('pointerdown', () => { window.fviz.t_press = performance.now(); }, "
+                "{once: true, capture: true}); 0")
     t = click_answered(b, page.screen("a", fs.x_a[j]))
     page_ms = b.evaluate("window.fviz.t_received - window.fviz.t_press")
     end = time.monotonic() + budget()

@@ -68,7 +68,8 @@ def test_matches_mapped_into_the_paper_frame_sit_on_the_direct_f(raw_drive, came
     near = symmetric_epipolar_distance(F, all_a, all_b) < 2.0
     assert rows["gt"]["n_eval"] == near.sum()
     for norm, scale in (("etr", 1 / F[2, 2]), ("fbn", 1 / np.linalg.norm(F)), ("abs", 1 / np.abs(F).max())):
-        r = np.abs(np.einsum("ni,ij,nj->n", np.c_[all_b[near], np.ones(near.sum())], F, np.c_[all_a[near], np.ones(near.sum())])) * abs(scale)
+        hb, ha = np.c_[all_b[near], np.ones(near.sum())], np.c_[all_a[near], np.ones(near.sum())]
+        r = np.abs(np.einsum("ni,ij,nj->n", hb, F, ha)) * abs(scale)
         assert rows["gt"][f"epi_abs_{norm}"] == pytest.approx(r.mean(), rel=1e-4)
         assert rows["gt"][f"epi_sqr_{norm}"] == pytest.approx((r**2).mean(), rel=1e-4)
     # the paper's observation: its ground-truth row is (nearly) the same under all three norms there

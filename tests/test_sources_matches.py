@@ -188,6 +188,7 @@ def test_eval_with_hloc_matches_and_a_kitti_pair(kitti_root, tmp_path):
     (rec,) = [json.loads(l) for l in (tmp_path / "run" / "results.jsonl").read_text().splitlines()]
     assert rec["error"] is None and rec["result"]["n_matches"] == int((m0 >= 0).sum())
     i = np.flatnonzero(m0 >= 0)
-    F_cv, _ = cv2.findFundamentalMat(kp[0][i].astype(np.float32).astype(float), kp[1][m0[i]].astype(np.float32).astype(float), cv2.FM_8POINT)
+    F_cv, _ = cv2.findFundamentalMat(kp[0][i].astype(np.float32).astype(float), kp[1][m0[i]].astype(np.float32).astype(float),
+                                     cv2.FM_8POINT)
     F = np.array(next(e["F"] for e in rec["result"]["estimators"] if e["name"] == "8point"))
     assert same_up_to_sign(F / np.linalg.norm(F), F_cv / np.linalg.norm(F_cv), 1e-6)

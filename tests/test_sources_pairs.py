@@ -81,7 +81,8 @@ def test_two_images_without_ground_truth(tmp_path):
     for i, e in enumerate(doc["estimators"]):
         assert e["metrics"]["agreement_nsgd"] == pytest.approx(np.delete(M[i], i).min())
     assert ag["threshold"] == 0.05 and sorted(n for g in ag["groups"] for n in g) == sorted(names)
-    assert any({"ransac", "magsac"} <= set(g) for g in ag["groups"]) == (M[1, 2] < 0.05 or max(M[0, 1], M[0, 2]) < 0.05)  # chained through 8point
+    # chained through 8point
+    assert any({"ransac", "magsac"} <= set(g) for g in ag["groups"]) == (M[1, 2] < 0.05 or max(M[0, 1], M[0, 2]) < 0.05)
     assert "no ground truth" in proc.stderr
     summary = text(out, L.SUMMARY)[0]
     assert "no ground truth" in summary and "NSGD between the estimators" in summary
@@ -96,7 +97,8 @@ def test_two_images_without_ground_truth(tmp_path):
 def test_kitti_pair_as_a_pairs_line_matches_kitti_root(kitti_root, tmp_path):
     """The test writes KITTI's calibration and poses as pairs lines itself: same F_gt and metrics to 1e-9."""
     seq = kitti_root / "odometry" / "dataset" / "sequences" / "00"
-    calib = {l.split(":")[0]: np.array(l.split()[1:], float).reshape(3, 4) for l in (seq / "calib.txt").read_text().splitlines() if ":" in l}
+    calib = {l.split(":")[0]: np.array(l.split()[1:], float).reshape(3, 4)
+             for l in (seq / "calib.txt").read_text().splitlines() if ":" in l}
     poses = np.loadtxt(kitti_root / "odometry" / "dataset" / "poses" / "00.txt").reshape(-1, 3, 4)
     K0 = calib["P0"][:, :3]
     t1 = np.linalg.solve(calib["P1"][:, :3], calib["P1"][:, 3])

@@ -167,7 +167,8 @@ def test_triage_recording_steps_through_the_worst_pairs_first(temporal):
     assert _blueprint_fields(open_rrd(out / TRIAGE_RRD))["time_panel"]["timeline"] == ["rank"]
 
     banners = column(out / TRIAGE_RRD, L.TRIAGE_TAGS, "TextDocument:text")
-    assert [b[0].split("\n")[2].split("**")[1] for b in banners] == [f"rank {r.rank}: sed_median of magsac {r.value:.3g} px" for r in ranked]
+    assert ([b[0].split("\n")[2].split("**")[1] for b in banners]
+            == [f"rank {r.rank}: sed_median of magsac {r.value:.3g} px" for r in ranked])
     # its first line: the pair's verdict, judged on magsac as its tags are (the same words: matcher, estimator, ...)
     from fviz.verdicts import VERDICTS, pair_verdict
 

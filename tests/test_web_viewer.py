@@ -341,7 +341,8 @@ def assert_overview_shows_both_frames_the_ground_truth_and_the_comparison(shot: 
 
     for v, box in boxes.items():
         scale = box[2] / pair_frames[v].shape[1]
-        strips, labels = R.column(inspected, L.epipoles(v), "LineStrips2D:strips")[0], R.column(inspected, L.epipoles(v), "LineStrips2D:labels")[0]
+        strips = R.column(inspected, L.epipoles(v), "LineStrips2D:strips")[0]
+        labels = R.column(inspected, L.epipoles(v), "LineStrips2D:labels")[0]
         for name, color in COLORS.items():
             pts = np.concatenate([np.array(st) for st, lab in zip(strips, labels) if lab.startswith(f"{name}: epipole")][:-1])
             cx, cy = (pts.min(0) + pts.max(0)) / 2

@@ -530,7 +530,8 @@ def fit_gt(c: Correspondences, pair) -> tuple[np.ndarray, float, str]:
         F = refined_fit(c.x_a, c.x_b)
         if F is None:
             raise FvizError(f"--gt-matches {c.path}: no F fits these correspondences (degenerate: all on a plane or a line?)")
-        how = f"F_gt fitted to the {len(c.x_a)} ground-truth correspondences of {c.path} (8-point, then refined on their Sampson distance under a Cauchy loss)"
+        how = (f"F_gt fitted to the {len(c.x_a)} ground-truth correspondences of {c.path} (8-point, then refined on "
+               "their Sampson distance under a Cauchy loss)")
         if model is not None:
             how = f"{model} is all zeros (a placeholder, as kusvod2 ships for some pairs), taken as no model: {how}"
     sed = symmetric_epipolar_distance(F, c.x_a, c.x_b)

@@ -563,7 +563,8 @@ def open_dataset(root: str | Path, sequence: str | None = None, drive: str | Non
     found += [("drive", p.name[: -len("_sync")]) for b in (root / "raw", root) for p in sorted(b.glob("*/*_drive_*_sync"))]
     found += [("drive", p.name[: -len("_sync")]) for p in sorted(root.glob("*_drive_*_sync"))]
     if not found:
-        raise FvizError(f"--kitti-root {root}: no KITTI layout found (expected odometry dataset/sequences/NN or raw DATE/DATE_drive_NNNN_sync)")
+        raise FvizError(f"--kitti-root {root}: no KITTI layout found (expected odometry dataset/sequences/NN or raw "
+                        "DATE/DATE_drive_NNNN_sync)")
     if len(found) > 1:
         listed = ", ".join(f"--{k} {v}" for k, v in found)
         raise FvizError(f"--kitti-root {root} holds several sequences/drives: pick one ({listed})")

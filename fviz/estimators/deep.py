@@ -42,7 +42,8 @@ STEREO = ASSETS / "fviz-deep-stereo.pt"
 def bundled_weights() -> Path:
     path = Path(os.environ.get(WEIGHTS_ENV, BUNDLED))
     if not path.is_file():
-        raise FvizError(f"--estimator deep: bundled weights not found at {path} (install from a checkout with pip install -e ., or use deep:PATH)")
+        raise FvizError(f"--estimator deep: bundled weights not found at {path} (install from a checkout with "
+                        "pip install -e ., or use deep:PATH)")
     return path
 
 

@@ -147,7 +147,8 @@ def get_estimator(spec: str, cfg: RobustConfig = RobustConfig()) -> EstimateFn:
         return BUILTINS["deep" if head == "deep" else spec](spec, cfg)
     if ":" in spec:
         return _user_function(spec)
-    raise FvizError(f"--estimator {spec!r}: unknown (built-in: {', '.join(BUILTINS)}; or deep:PATH, module:function, and in eval/triage oracle-mean, mean:SEL)")
+    raise FvizError(f"--estimator {spec!r}: unknown (built-in: {', '.join(BUILTINS)}; or deep:PATH, module:function, "
+                    "and in eval/triage oracle-mean, mean:SEL)")
 
 
 def is_user_spec(spec: str) -> bool:

@@ -21,8 +21,8 @@ integers).  The normalization layer comes after the head (:mod:`fviz.models.norm
   Rank 2 by construction ([t]x has rank 2).
 - :class:`EpiHead` (k = 8, the epipolar parametrization): two columns c1, c2 and (alpha, beta);
   the third column is alpha c1 + beta c2, so F (alpha, beta, -1)^T = 0: rank 2 by construction, and
-  (alpha, beta) is the epipole in image a (in the conditioned coordinates below, when conditioned).  This cannot represent an epipole at infinity (rectified
-  stereo), a limitation of the parametrization itself.
+  (alpha, beta) is the epipole in image a (in the conditioned coordinates below, when conditioned).  This cannot
+  represent an epipole at infinity (rectified stereo), a limitation of the parametrization itself.
 
 Conditioning (``conditioned=True``, the default; a deviation from the paper documented here): the
 Base and EPI heads produce F_n in *conditioned* coordinates x_n = T x, T = [[1/s, 0, -cx/s],

@@ -84,7 +84,8 @@ def read_checkpoint(path: str | Path) -> dict[str, Any]:
         raise FvizError(f"{path}: not an fviz model checkpoint (no '{FORMAT}' format marker)")
     if not isinstance(ckpt.get("format_version", 0), int) or ckpt.get("format_version", 0) > FORMAT_VERSION:
         raise FvizError(
-            f"{path}: checkpoint format version {ckpt.get('format_version')!r} is newer than this fviz reads ({FORMAT_VERSION}); upgrade fviz"
+            f"{path}: checkpoint format version {ckpt.get('format_version')!r} is newer than this fviz reads "
+            f"({FORMAT_VERSION}); upgrade fviz"
         )
     for key in ("model_config", "model_state"):
         if not isinstance(ckpt.get(key), dict):

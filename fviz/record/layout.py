@@ -4,9 +4,9 @@ Colours
     Every estimator has one fixed colour (:func:`estimator_colors`; the ground truth is white), used for all
     of it: epipolar lines, epipole, comparison bars, metric series, motion tracks and the probe's lines.
     Charts and plots have a dark background (``CHART_BACKGROUND``) so that white shows in any theme; their
-    labels are white (Rerun draws them on grey boxes) beside the coloured bar. A point's residual (its distance to its epipolar line, px) is a separate,
-    sequential and colour-blind-safe scale (viridis, 0 to ``RESIDUAL_MAX_PX``), given to keypoints through
-    the class ids of the static annotation context, whose labels are the scale's legend.
+    labels are white (Rerun draws them on grey boxes) beside the coloured bar. A point's residual (its distance to
+    its epipolar line, px) is a separate, sequential and colour-blind-safe scale (viridis, 0 to
+    ``RESIDUAL_MAX_PX``), given to keypoints through the class ids of the static annotation context, whose labels are the scale's legend.
 
 Entity paths (``{v}`` is the view, ``a`` or ``b``; ``{e}`` an estimator name, ``gt`` for the ground truth):
 
@@ -35,7 +35,8 @@ Entity paths (``{v}`` is the view, ``a`` or ``b``; ``{e}`` an estimator name, ``
                                 (what ``fviz summary`` and the tests read)
     metrics/{metric}            Scalars (runs of many pairs): one named, coloured series per F on ``pair``
     metrics/{metric}/log10      Scalars: the log10 an error metric's plot draws (LOG_METRICS, log_values)
-    motion/{track}              Scalars (eval.rrd: they follow consecutive pairs, not triage's ranks): per F the image-a epipole (``epipole_x``,
+    motion/{track}              Scalars (eval.rrd: they follow consecutive pairs, not triage's ranks): per F the
+                                image-a epipole (``epipole_x``,
                                 ``epipole_y`` px; NaN when at infinity, its direction in ``epipole_dir_deg``),
                                 ``rotation_deg`` (angle of R) and the translation direction ``t_x``, ``t_y``,
                                 ``t_z`` (unit, the ground truth's sign)
@@ -692,7 +693,8 @@ def training_blueprint(names: Sequence[str], sizes: Sequence[tuple[tuple[int, in
     """train.rrd's layout: one tab per watched pair (image a above b, the network's lines and epipole beside the
     ground truth's, keypoints by residual; its SED over ``step`` below), and with ``curves`` a tab of the
     training and validation curves (TRAIN_PLOTS: the two losses in one plot, the validation SED beside the two
-    constants', legends on) above each validation's verdict against the constants (TRAIN_VERDICT). The time panel opens on ``step``: scrubbing it shows the lines converge."""
+    constants', legends on) above each validation's verdict against the constants (TRAIN_VERDICT). The time panel
+    opens on ``step``: scrubbing it shows the lines converge."""
     import rerun.blueprint as rrb
     from rerun.blueprint.archetypes import PlotBackground
 

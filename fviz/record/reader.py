@@ -424,7 +424,8 @@ def recording_blueprint(path: str | Path, active: str | None = None):
         bp = L.blueprint(list(s.estimators), sizes if None not in sizes else None, single_pair=single_pair,
                          head=L.TRIAGE_TAGS in s.entity_paths, active=active, classes=classes, ranges=ranges,
                          curves=any(p.startswith(L.CURVES + "/") for p in s.entity_paths),
-                         run_summary=L.RUN_SUMMARY in s.entity_paths, notice=notice, verdict=L.VERDICT in s.entity_paths and None not in sizes)
+                         run_summary=L.RUN_SUMMARY in s.entity_paths, notice=notice,
+                         verdict=L.VERDICT in s.entity_paths and None not in sizes)
     except ValueError as exc:
         raise FvizError(f"--tab {active}: {path} has {exc}") from None
     return s.app_id, bp

@@ -390,7 +390,8 @@ def pair_markdown(result: PairResult, probe_steps: int = 0) -> str:
     p = result.pair
     columns = [c for c in SUMMARY_COLUMNS if any(c[0] in r.metrics for r in result.estimators)] or list(SUMMARY_COLUMNS[:1])
     suspect = [n for n in result.notes if n.startswith(GT_SUSPECT_NOTE)]
-    lines = [f"**⚠ ground truth suspect**: {n.removeprefix(GT_SUSPECT_NOTE)}" for n in suspect] + [""] * bool(suspect)  # reader.SUSPECT_BANNER
+    # reader.SUSPECT_BANNER
+    lines = [f"**⚠ ground truth suspect**: {n.removeprefix(GT_SUSPECT_NOTE)}" for n in suspect] + [""] * bool(suspect)
     # the table first, so that it shows without scrolling (1600x1000); what it is computed on below it
     lines += [
         f"**{p['name']}**",

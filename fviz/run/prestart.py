@@ -1,6 +1,6 @@
 """The worker processes of ``eval`` and ``triage``, started the moment the command is known (:mod:`fviz.entry`),
-before the command line is imported and its options parsed (typer and its parsing, ~0.3 s) and the run is prepared: their own imports (numpy,
-OpenCV, fviz's evaluation) overlap the main process's instead of following them. A run's
+before the command line is imported and its options parsed (typer and its parsing, ~0.3 s) and the run is prepared:
+their own imports (numpy, OpenCV, fviz's evaluation) overlap the main process's instead of following them. A run's
 :class:`fviz.run.execute.WorkerPool` takes them (:func:`take`); a command that ends first (``--help``, a bad
 flag, a run too small for workers) leaves them to die with it (they die with their parent).
 

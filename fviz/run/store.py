@@ -203,7 +203,8 @@ def _result_problem(rec: dict) -> str | None:
     names = []
     for e in result["estimators"]:
         problem = (_typed_problem(e, _ESTIMATOR_KEYS, "result.estimators[].") or _array_problem(e.get("F"), (3, 3), "result.estimators[].F")
-                   or _array_problem(e.get("R"), (3, 3), "result.estimators[].R") or _array_problem(e.get("t"), (3,), "result.estimators[].t"))
+                   or _array_problem(e.get("R"), (3, 3), "result.estimators[].R")
+                   or _array_problem(e.get("t"), (3,), "result.estimators[].t"))
         if problem:
             return problem
         names.append(e["name"])

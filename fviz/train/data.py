@@ -498,7 +498,8 @@ def resolve_root(root: str):
     return resolve_path(root)
 
 
-def filter_by_gt_agreement(items: list[KittiItem], max_sed_px: float, cache_path=None, on_item=None) -> tuple[list[KittiItem], dict[str, float]]:
+def filter_by_gt_agreement(items: list[KittiItem], max_sed_px: float, cache_path=None, on_item=None
+                           ) -> tuple[list[KittiItem], dict[str, float]]:
     """Items whose ground truth agrees with their images (:func:`gt_agreement_px` <= ``max_sed_px``).
 
     The figure depends only on the images (not the direction): one per unordered pair, cached in
@@ -585,7 +586,8 @@ def make_datasets(recipe, render_device: str | torch.device = "cpu") -> tuple[to
         keep = np.linspace(0, len(val_items) - 1, d.val_size).round().astype(int)
         val_items = [val_items[i] for i in keep]
     if not train_items:
-        raise FvizError("data: no training pairs left after the validation split" + (" and the ground-truth filter" if d.max_gt_sed_px else ""))
+        raise FvizError("data: no training pairs left after the validation split"
+                        + (" and the ground-truth filter" if d.max_gt_sed_px else ""))
     augment = Augment(d.augment_swap, d.augment_flip, d.augment_crop, d.augment_photometric)
     return KittiPairs(train_items, hw, norm, augment, recipe.train.seed), KittiPairs(val_items, hw, norm)
 

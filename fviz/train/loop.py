@@ -200,7 +200,8 @@ def sed_loss(F_pred: torch.Tensor, xa: torch.Tensor, xb: torch.Tensor, knee_px: 
     return (knee_px * (torch.sqrt(1.0 + (sed / knee_px).square()) - 1.0)).mean().float()
 
 
-def sample_points_on_geometry(F_t: torch.Tensor, input_hw: tuple[int, int], n: int, generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
+def sample_points_on_geometry(F_t: torch.Tensor, input_hw: tuple[int, int], n: int, generator: torch.Generator
+                              ) -> tuple[torch.Tensor, torch.Tensor]:
     """Points with x_b^T F_t x_a = 0: x_a uniform, x_b = a uniform point projected on F_t x_a.  -> (B, n, 3) x 2, float64."""
     B = F_t.shape[0]
     H, W = input_hw
@@ -795,7 +796,8 @@ def train(  # noqa: C901, PLR0915 (issue 41: to split into losses / state / curv
                             out_dir / "best.pt")
             if progress:
                 recent = losses[-t.log_every:]
-                train_part = f"train loss {sum(recent) / len(recent):.4g} (mean of the last {len(recent)} batches, training mode)" if recent else ""
+                train_part = (f"train loss {sum(recent) / len(recent):.4g} (mean of the last {len(recent)} batches, "
+                              "training mode)") if recent else ""
                 others = "  ".join(f"{k} {v:.4g}" for k, v in metrics.items() if k in VALIDATION_FIGURES and k != "loss")
                 bar.print(f"step {step} (epoch {epoch}): {train_part} | val loss {metrics.get('loss', float('nan')):.4g} "
                           f"({len(val_ds)} held-out pairs, eval mode: BatchNorm running statistics, no dropout) | {others}")

@@ -9,8 +9,8 @@ A recipe has three tables, every key optional (defaults below):
     [data]    source, root, sequences, drives, val_sequences, kind, steps, cams, frames, frame_stride,
               val_fraction, train_size, val_size, val_points, cache, synthetic = { SceneConfig fields }
     [train]   batch_size, lr, schedule, warmup_steps, weight_decay, epochs, max_steps, l1_weight, l2_weight, loss_frame,
-              grad_clip, t_norm_weight, sed_weight, sed_points, keep_best, seed, device, amp, num_workers, threads, out_dir, init, checkpoint_every, val_every,
-              log_every, watch_pairs, watch_every, export_dtype
+              grad_clip, t_norm_weight, sed_weight, sed_points, keep_best, seed, device, amp, num_workers, threads,
+              out_dir, init, checkpoint_every, val_every, log_every, watch_pairs, watch_every, export_dtype
 
     [variants."siamese-rec-pos-fbn"]   # optional per-variant overrides, applied when
     train = { lr = 3e-4 }              # model.variant is that name
@@ -226,7 +226,8 @@ def _coerce(value: Any, tp, meta: dict, where: str) -> Any:
         if not isinstance(value, list):
             raise bad
         (item_tp,) = typing.get_args(tp)
-        out = [_coerce(v, item_tp, {k: v2 for k, v2 in meta.items() if k in ("min", "max", "choices")}, f"{where}[{i}]") for i, v in enumerate(value)]
+        bounds = {k: v2 for k, v2 in meta.items() if k in ("min", "max", "choices")}
+        out = [_coerce(v, item_tp, bounds, f"{where}[{i}]") for i, v in enumerate(value)]
         n = meta.get("len")
         if n is not None and len(out) != n and not (meta.get("allow_empty") and not out):
             raise FvizError(f"{where} must have {n} entries, got {len(out)}")
