@@ -33,10 +33,10 @@ INPUT_RATIO = 4.0
 INPUT_MIN_SHARE = 0.25
 INPUT_SCALES = (0.25, 0.5, 2.0 / 3.0, 1.5, 2.0, 4.0)
 K_CENTRE_OFFSET = 0.25  # of the image's width / height
-# the ground truth's own consensus: at least GT_OWN_SHARE of the matches (and MIN_EVIDENCE) within the evaluation
-# threshold of its lines, their median SED below GT_OWN_TIGHT of it (a wrong F_gt's band holds matches spread over
-# the band, median ~half the threshold: 0.69-1.4 px on the labelled corpus; a right one 0.1-0.6 px): then the matches
-# hold two consistent sets (repeated texture), and the ground truth is not the one to doubt
+# the ground truth's own consensus (fviz.diagnose.gt_own_consensus): at least GT_OWN_SHARE of the matches (and
+# MIN_EVIDENCE) within the evaluation threshold of its lines, their median SED below GT_OWN_TIGHT of it (a wrong F_gt's
+# band holds matches spread over the band, median ~half the threshold: 0.69-1.4 px on the labelled corpus; a right one
+# 0.1-0.6 px) and as tight as the best estimate's inliers: the matches hold two consistent sets (repeated texture)
 GT_OWN_SHARE = 0.25
 GT_OWN_TIGHT = 0.35
 
