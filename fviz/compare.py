@@ -115,7 +115,10 @@ def read_side(side: Side, metric: str) -> dict[str, tuple[float, str]]:
             estimators.add(row["estimator"])
             if row["estimator"] == side.estimator:
                 v = csv_number(row, metric, f"{path}:{line}")
-                out[row["name"]] = (v, row.get("pair_error") or row.get("error") or "")
+                # the ground truth's F (fviz.evaluate.GT_NAME) does not depend on the matches: a pair with too few is no
+                # error of it
+                pair_error = "" if side.estimator == "gt" else row.get("pair_error")
+                out[row["name"]] = (v, pair_error or row.get("error") or "")
     if not out:
         raise FvizError(f"estimator {side.estimator!r}: not in {path} (it has {', '.join(sorted(estimators))})")
     return out

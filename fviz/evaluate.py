@@ -300,7 +300,9 @@ def cheirality_points(pair: Pair, evaluation: tuple[np.ndarray, np.ndarray]):
     """The points that choose an F's decomposition into (R, t) by cheirality: the evaluation matches, or, with fewer
     than MIN_POSE_POINTS of them, the ground truth's own correspondences where the source knows them (synthetic
     scenes, ``--gt-matches``), never the estimate's matches; None when neither is enough: the pose is then
-    *undefined* (``pose_undefined`` = 1), not failed, and left out of the pose figures."""
+    *undefined* (``pose_undefined`` = 1): no failure of the F in its verdict, but the field's pose AUC counts it as an
+    infinite error (the matcher gave too few matches), and the AUC over the pairs with a pose leaves it out
+    (:func:`fviz.run.reports.standard_figures`)."""
     from fviz.geometry.pose import MIN_POSE_POINTS
 
     for x_a, x_b in (evaluation, (pair.points_a, pair.points_b), pair.gt_points or (None, None)):

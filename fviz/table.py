@@ -131,7 +131,7 @@ def table_from_rows(rows, variants: dict[str, dict], source: str = "row") -> tup
 
 def run_figures(run_dir: Path) -> dict[str, dict]:
     """The standard figures of a run, from its metrics.csv."""
-    from fviz.run.reports import FIGURE_KEYS, figures_known, standard_figures
+    from fviz.run.reports import FIGURE_KEYS, figures_known, row_failed, row_kind, standard_figures
 
     from fviz.run.config import csv_number
 
@@ -143,12 +143,11 @@ def run_figures(run_dir: Path) -> dict[str, dict]:
     with open(path, newline="") as f:
         for line, row in enumerate(_rows(f, path), 2):
             ground_truth.update([row["ground_truth"]] if row.get("ground_truth") else [])
-            failed = bool(row.get("error") or row.get("pair_error"))
+            failed = row_failed(row["estimator"], row.get("error"), row.get("pair_error"))
             failures[row["estimator"]] = failures.get(row["estimator"], 0) + failed
             per_pair.setdefault(row["estimator"], []).extend(
                 math.nan if failed else csv_number(row, k, f"{path}:{line}") for k in FIGURE_KEYS)
-            undefined = not failed and row.get("pose_undefined") in ("1", "1.0")  # fviz.run.reports: left out of pose AUC
-            pair_gt.setdefault(row["estimator"], []).append("pose-undefined" if undefined else row.get("ground_truth") or "pose")
+            pair_gt.setdefault(row["estimator"], []).append(row_kind(row["estimator"], row, failed))
     return standard_figures(per_pair, known=figures_known(ground_truth), pair_gt=pair_gt, failures=failures)
 
 

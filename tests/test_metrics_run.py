@@ -142,7 +142,12 @@ def test_triage_findings_flag_the_constant_estimators_only(run):
                if line.startswith("| ") and not line.startswith("| estimator")}
     assert "ignores-input" in flagged["frozen"] and "ignores-input" in flagged["ahead"]
     assert "ignores-input" in flagged["oracle-mean"] and "ignores-input" in flagged["mean-01"]
-    assert "ignores-input" not in flagged["magsac"] and "worse-than-baseline" not in flagged["magsac"]
+    # MAGSAC's epipole jitters 1.5-1.9 deg against the truth's 0.27 deg over these 7 pairs (400-800 keypoints): its
+    # bootstrap interval spans 0 or not by chance (it reached below 0.1 once fviz's SIFT moved to the pixel-centre
+    # convention, issue 43), so the flag says "not told apart", never the constants' zero spread
+    assert "worse-than-baseline" not in flagged["magsac"]
+    magsac = next(line for line in findings.splitlines() if line.startswith("| magsac "))
+    assert float(magsac.split("|")[4].split()[0]) > 0.5  # its epipole spread: it reads its input
     assert "ignores-input" not in flagged["odd"]  # 4 successful pairs: too few to judge
     assert "frozen: ignores-input" in proc.stdout
     # ranked by the first estimator the eval run named, and triage.md says so

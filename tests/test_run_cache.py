@@ -84,7 +84,7 @@ def test_the_cache_holds_opencvs_detection_in_hlocs_layout(run, kitti_root):
     with h5py.File(run / "features.h5", "r") as f:
         for frame in range(*FRAMES):
             gray = cv2.imread(str(image_path(kitti_root, frame)), cv2.IMREAD_GRAYSCALE)
-            kps, desc = cv2.SIFT_create(nfeatures=400).detectAndCompute(gray, None)
+            kps, desc = cv2.SIFT_create(nfeatures=400, enable_precise_upscale=True).detectAndCompute(gray, None)
             g = f[hloc_name(frame)]
             kp = np.array([k.pt for k in kps])
             assert g["keypoints"].dtype == np.float32 and g["descriptors"].shape == (128, len(kps))

@@ -276,6 +276,7 @@ def print_figures(out_dir: Path) -> None:
     from rich.table import Table
 
     from fviz.run.config import SUMMARY_JSON
+    from fviz.run.reports import UNDEFINED_COLUMN, WITH_POSE
     from fviz.verdicts import ERRORS, fails_column
 
     path = Path(out_dir) / SUMMARY_JSON
@@ -285,10 +286,15 @@ def print_figures(out_dir: Path) -> None:
     fmt = lambda v: "n/a" if v is None else f"{v:.3g}"  # noqa: E731
     t = Table(title=f"{doc['selection']}: {doc['pairs']} pairs")
     first = next(iter(doc["estimators"].values()), {"pose_auc": {}})
-    for c in ["estimator", *(f"AUC@{k}°" for k in first["pose_auc"]), "NSGD recall", "med SED px", "med Sampson px", ERRORS, fails_column()]:
+    apart = any(f.get("pose_undefined") for f in doc["estimators"].values())  # say the undefined pairs apart
+    extra = [f"AUC@{'/'.join(first['pose_auc'])}° ({WITH_POSE})", UNDEFINED_COLUMN] if apart else []
+    for c in ["estimator", *(f"AUC@{k}°" for k in first["pose_auc"]), *extra, "NSGD recall", "med SED px", "med Sampson px",
+              ERRORS, fails_column()]:
         t.add_column(c, justify="left" if c == "estimator" else "right")
     for name, f in doc["estimators"].items():
-        t.add_row(name + (" (oracle)" if f["oracle"] else ""), *(fmt(v) for v in f["pose_auc"].values()),
+        cells = ["/".join(fmt(v) for v in f.get("pose_auc_with_pose", {}).values()),
+                 f"{f.get('pose_undefined', 0)}/{f['pairs']}"] if apart else []
+        t.add_row(name + (" (oracle)" if f["oracle"] else ""), *(fmt(v) for v in f["pose_auc"].values()), *cells,
                   fmt(f["nsgd_recall"]), fmt(f["sed_median"]), fmt(f["sampson_median"]), f"{f['errors']}/{f['pairs']}",
                   f"{f['fails']}/{f['pairs']}")
     Console(width=max(Console().width, 150)).print(t)

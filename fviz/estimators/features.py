@@ -46,11 +46,20 @@ def user_matches(c) -> Matches:
     return Matches(np.stack([order, order], 1), np.asarray(c.x_a, float)[order], np.asarray(c.x_b, float)[order], distance, scores)
 
 
+# What changed the keypoints a detector makes, per kind (fviz.run.hloc_cache's settings carry it, so that a run's
+# features.h5 written by an older fviz is detected again, never mixed with the new ones). sift 2: precise
+# upscaling (issue 43: OpenCV's default put every keypoint +0.25 px right and down of the pixel-centre convention).
+DETECTOR_VERSIONS = {"sift": 2}
+
+
 def _detector(cfg: FeatureConfig):
     import cv2
 
     if cfg.kind == "sift":
-        return cv2.SIFT_create(nfeatures=cfg.max_keypoints)
+        # OpenCV doubles the image for the first octave by default with a half-pixel error of its own: every keypoint
+        # lands +0.25 px right and down of fviz's convention (pixel centres at integers; Gaussian blobs at known
+        # centres measure +0.250 / +0.251 px). The precise upscaling keeps the centres (-0.001 px).
+        return cv2.SIFT_create(nfeatures=cfg.max_keypoints, enable_precise_upscale=True)
     if cfg.kind == "orb":
         return cv2.ORB_create(nfeatures=cfg.max_keypoints)
     return cv2.AKAZE_create()

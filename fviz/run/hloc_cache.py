@@ -32,7 +32,7 @@ from typing import Any, Callable
 import numpy as np
 
 from fviz.digest import array_digest as digest  # noqa: F401 (re-exported: the run's image digest)
-from fviz.estimators.features import FeatureConfig, Features, Matches
+from fviz.estimators.features import DETECTOR_VERSIONS, FeatureConfig, Features, Matches
 from fviz.estimators.learned import is_learned
 
 FEATURES_FILE = "features.h5"
@@ -49,10 +49,13 @@ Entry = tuple[str, str, dict[str, np.ndarray], dict[str, str]]
 
 
 def settings(cfg: FeatureConfig, matching: bool) -> str:
-    """What made a group: the detector's settings (and the matcher's), with OpenCV's version."""
+    """What made a group: the detector's settings (and the matcher's), with OpenCV's version and, for a detector
+    whose keypoints an fviz version changed, its DETECTOR_VERSIONS entry (an older file's groups lack it: detected again)."""
     import cv2
 
     d: dict[str, Any] = {"features": cfg.kind, "max_keypoints": cfg.max_keypoints, "opencv": cv2.__version__}
+    if cfg.kind in DETECTOR_VERSIONS:  # keypoints made differently by this fviz than by an older one (SIFT's +0.25 px)
+        d["detector_version"] = DETECTOR_VERSIONS[cfg.kind]
     if is_learned(cfg.kind):  # the models' packages (their weights come with them)
         from importlib.metadata import version
 

@@ -20,6 +20,7 @@ from fviz.diagnose import gt_bias, pair_epipole_offset
 from fviz.failures import Failures, failure_markdown
 from fviz.verdicts import ERRORS, fail_rule, fails_column
 from fviz.evaluate import GT_NAME, PairResult
+from fviz.geometry.pose import MIN_POSE_POINTS
 from fviz.run.config import _FLAGS, _flatten, _show  # noqa: E402  (a refused merge names the flags)
 from fviz.run.config import (
     CSV_FILE, INT_COLUMNS, PAPER_COLUMNS, PAPER_NORMS, PARQUET_FILE, PERCENTILES, RESULTS_FILE, RRD_FILE,
@@ -66,6 +67,36 @@ def figures_known(ground_truth: set[str]) -> dict[str, bool]:
 
 # Per pair and estimator, what the standard figures need (NaN where the estimate failed).
 FIGURE_KEYS = ("pose_err_deg", "nsgd", "sed_median", "sampson_median")
+UNDEFINED = "pose-undefined"  # a row's kind (row_kind) where too few evaluation matches leave its figures undefined
+WITH_POSE = "pairs with a pose"  # the second pose AUC: over the pairs whose pose is defined only
+UNDEFINED_COLUMN = "undefined (too few matches)"
+
+
+def row_failed(est: str, error: Any, pair_error: Any) -> bool:
+    """Whether an estimator's row is an error (no F): its own error or its pair's. The ground truth's row never
+    is: its F does not depend on the matches (a pair with too few matches, or not evaluated, leaves its residuals
+    undefined, :func:`row_kind`)."""
+    return est != GT_NAME and bool(error or pair_error)
+
+
+def row_kind(est: str, row: dict[str, Any], failed: bool) -> str:
+    """What one CSV row gives the standard figures: the pair's ground truth (pose, F, correspondences, none), or
+    UNDEFINED: an estimate whose pose could not be chosen for want of evaluation matches (``pose_undefined``; the
+    field's pose AUC counts it as an infinite error, the matcher gave too few matches), or the ground truth's own
+    row on a pair with fewer than MIN_POSE_POINTS evaluation matches (or not evaluated): its residuals have no
+    value there, which is no failure of the ground truth. ``row``: from results (floats) or metrics.csv (text)."""
+    from fviz.geometry.pose import MIN_POSE_POINTS
+
+    gt = row.get("ground_truth") or "pose"
+    if est == GT_NAME:
+        try:
+            n_eval = float(row.get("n_eval"))
+        except (TypeError, ValueError):
+            n_eval = 0.0
+        few = bool(row.get("error") or row.get("pair_error")) or not n_eval >= MIN_POSE_POINTS
+        return UNDEFINED if few and gt == "pose" else gt
+    undefined = str(row.get("pose_undefined")) in ("1", "1.0")
+    return UNDEFINED if not failed and undefined else gt
 
 
 class _Stats:
@@ -111,13 +142,12 @@ class _Stats:
         for row in rows:
             est = row["estimator"]
             self.order[est] = None
-            failed = bool(row["error"] or rec["error"])
+            failed = row_failed(est, row["error"], rec["error"])
             if failed:
                 self.failed[est] = self.failed.get(est, 0) + 1
             self.per_pair.setdefault(est, array("d")).extend(
                 math.nan if failed or row.get(k) is None else float(row[k]) for k in FIGURE_KEYS)
-            undefined = not failed and row.get("pose_undefined") == 1.0  # too few evaluation matches: no (R, t)
-            self.pair_gt.setdefault(est, []).append("pose-undefined" if undefined else row.get("ground_truth") or "pose")
+            self.pair_gt.setdefault(est, []).append(row_kind(est, row, failed))
             for key in self.keys:
                 v = row.get(key)
                 if isinstance(v, float) and math.isfinite(v):
@@ -404,36 +434,58 @@ def standard_figures(per_pair: dict[str, Iterable[float]], order: Iterable[str] 
                      pair_gt: dict[str, list[str]] | None = None,
                      failures: dict[str, int] | None = None) -> dict[str, dict[str, Any]]:
     """Per estimator, from its per-pair FIGURE_KEYS (flat, NaN = no value): pairs, errors (no F), fails (of
-    ``sed_median``, :mod:`fviz.verdicts`: past 2 px or no value, as compare counts them), pose AUC@5/10/20 of
-    pose_err_deg (LightGlue's pose_auc; failures infinite), nsgd_recall (share of pairs with nsgd <
-    NSGD_RECALL_THRESHOLD; failures miss), medians of the per-pair sed_median and sampson_median over the
-    pairs that succeeded, and whether it is an oracle. ``known``: {"pose", "nsgd"} -> whether the pairs'
-    ground truth allows that figure; NaN (n/a) where it does not (no pose, no ground truth). ``pair_gt``: per
-    estimator, each pair's ground truth (pose, F, correspondences, none): pose AUC is then over the pairs with a
-    pose and NSGD recall over those with any ground truth (``pose_pairs``, ``gt_pairs``), never counting a pair
-    without one as a miss. ``failures``: per estimator, the pairs it gave no F on, when a NaN may also mean
-    *undefined* (no evaluation match for a median SED): those are not failures."""
+    ``sed_median``, :mod:`fviz.verdicts`: past 2 px or no value, as compare counts them), nsgd_recall (share of
+    pairs with nsgd < NSGD_RECALL_THRESHOLD; failures miss), medians of the per-pair sed_median and
+    sampson_median over the pairs that succeeded, whether it is an oracle, and two pose AUC@5/10/20 of
+    pose_err_deg (SuperGlue's ``pose_auc``, which LightGlue and glue-factory use):
+
+    - ``pose_auc``, the field's figure: over **every** pair with a ground-truth pose (``pose_pairs``); no F, no
+      pose recovered, or a pose undefined for want of evaluation matches (``pose_undefined`` pairs: the matcher
+      gave too few) is an infinite error, as SuperGlue / glue-factory count a failed estimate;
+    - ``pose_auc_with_pose``: the same over the ``with_pose_pairs`` whose pose is defined only; not comparable
+      with published figures, nor across matchers on hard data (a matcher that gives few matches drops its
+      hard pairs).
+
+    The ground truth's own row never fails: its errors are 0, its pose AUC is over the pairs where it has a pose
+    value, and ``pose_undefined`` counts the pairs with too few evaluation matches (its residuals undefined there,
+    not fails). ``known``: {"pose", "nsgd"} -> whether the pairs' ground truth allows that figure; NaN (n/a)
+    where it does not. ``pair_gt``: per estimator, each pair's kind (:func:`row_kind`: pose, F,
+    correspondences, none, or UNDEFINED): a pair without the ground truth a figure needs never counts as a miss
+    (NSGD recall is over ``gt_pairs``). ``failures``: per estimator, the pairs it gave no F on, when a NaN may
+    also mean *undefined*: those are not failures."""
     known = known or {"pose": True, "nsgd": True}
     from fviz.estimators.registry import is_oracle
     from fviz.geometry import AUC_THRESHOLDS_DEG, NSGD_RECALL_THRESHOLD, pose_auc
 
     sed_rule = fail_rule("sed_median")
+    auc = lambda e: {f"{t:g}": a if known["pose"] else math.nan for t, a in zip(AUC_THRESHOLDS_DEG, pose_auc(e))}  # noqa: E731
 
     out = {}
     for est in order or per_pair:
         v = np.asarray(per_pair.get(est, []), np.float64).reshape(-1, len(FIGURE_KEYS))
         pose, nsgd_, sed, samp = v.T
-        errors = int(np.isnan(sed).sum()) if failures is None else failures.get(est, 0)
+        is_gt = est == GT_NAME
+        errors = 0 if is_gt else int(np.isnan(sed).sum()) if failures is None else failures.get(est, 0)
         kinds = (pair_gt or {}).get(est)
-        has_pose = np.ones(len(v), bool) if kinds is None or len(kinds) != len(v) else np.array([k == "pose" for k in kinds], bool)
-        has_gt = np.ones(len(v), bool) if kinds is None or len(kinds) != len(v) else np.array([k != "none" for k in kinds], bool)
-        pose, nsgd_ = pose[has_pose], nsgd_[has_gt]
+        kinds = np.array(kinds if kinds is not None and len(kinds) == len(v) else ["pose"] * len(v), dtype=object)
+        undefined = kinds == UNDEFINED
+        has_pose = (kinds == "pose") | undefined
+        has_gt = kinds != "none"
+        defined = kinds == "pose"
+        if is_gt:  # the reference: its pose error is 0 wherever it has one, never a miss
+            has_pose &= np.isfinite(pose)
+            defined &= np.isfinite(pose)
+        nsgd_ = nsgd_[has_gt & ~(is_gt & np.isnan(nsgd_))]
         with np.errstate(invalid="ignore"):
             recall = float(np.mean(np.nan_to_num(nsgd_, nan=np.inf) < NSGD_RECALL_THRESHOLD)) if len(nsgd_) else math.nan
         out[est] = {
-            "pairs": len(v), "errors": errors, "fails": int(sum(sed_rule.fails(x) for x in sed)), "pose_pairs": int(has_pose.sum()), "gt_pairs": int(has_gt.sum()),
-            "pose_undefined": 0 if kinds is None else sum(k == "pose-undefined" for k in kinds),
-            "pose_auc": {f"{t:g}": a if known["pose"] else math.nan for t, a in zip(AUC_THRESHOLDS_DEG, pose_auc(pose))},
+            "pairs": len(v), "errors": errors,
+            "fails": int(sum(sed_rule.fails(x) for x in sed if not (is_gt and math.isnan(x)))),
+            "pose_pairs": int(has_pose.sum()), "gt_pairs": int(has_gt.sum()),
+            "pose_undefined": int(undefined.sum()),
+            "pose_auc": auc(pose[has_pose]),
+            "with_pose_pairs": int(defined.sum()),
+            "pose_auc_with_pose": auc(pose[defined]),
             "nsgd_recall": recall if known["nsgd"] else math.nan,
             "sed_median": float(np.nanmedian(sed)) if np.isfinite(sed).any() else math.nan,
             "sampson_median": float(np.nanmedian(samp)) if np.isfinite(samp).any() else math.nan,
@@ -443,34 +495,47 @@ def standard_figures(per_pair: dict[str, Iterable[float]], order: Iterable[str] 
 
 
 def figures_markdown(figures: dict[str, dict[str, Any]]) -> list[str]:
-    """The standard figures as a Markdown table, with how they are computed."""
+    """The standard figures as a Markdown table, with how they are computed. Where some pair's pose is undefined
+    (too few evaluation matches), two more columns say so apart: the AUC over the pairs with a pose (a second,
+    named figure) and the count of undefined pairs."""
     from fviz.geometry import NSGD_RECALL_THRESHOLD
 
     aucs = next(iter(figures.values()), {}).get("pose_auc", {})
+    apart = any(f.get("pose_undefined") for f in figures.values())
+    slash = "/".join(aucs)
     lines = [
-        "| estimator | " + " | ".join(f"AUC@{t}°" for t in aucs) + f" | NSGD recall (<{NSGD_RECALL_THRESHOLD:g}) | "
-        f"median SED px | median Sampson px | {ERRORS} | {fails_column()} |",
-        "|---|" + "---|" * (len(aucs) + 5),
+        "| estimator | " + " | ".join(f"AUC@{t}°" for t in aucs)
+        + (f" | AUC@{slash}° ({WITH_POSE}) | {UNDEFINED_COLUMN}" if apart else "")
+        + f" | NSGD recall (<{NSGD_RECALL_THRESHOLD:g}) | median SED px | median Sampson px | {ERRORS} | {fails_column()} |",
+        "|---|" + "---|" * (len(aucs) + 5 + 2 * apart),
     ]
     for est, f in figures.items():
+        extra = (f" | {'/'.join(_fmt(a) for a in f['pose_auc_with_pose'].values())} | {f['pose_undefined']}/{f['pairs']}"
+                 if apart else "")
         lines.append(f"| {_display(est)}{' (*oracle*)' if f['oracle'] else ''} | "
-                     + " | ".join(_fmt(a) for a in f["pose_auc"].values())
+                     + " | ".join(_fmt(a) for a in f["pose_auc"].values()) + extra
                      + f" | {_fmt(f['nsgd_recall'])} | {_fmt(f['sed_median'])} | {_fmt(f['sampson_median'])} | "
                      f"{f['errors']}/{f['pairs']} | {f['fails']}/{f['pairs']} |")
     partial = [f"{_display(e)}: pose AUC over {f['pose_pairs']} and NSGD recall over {f['gt_pairs']} of {f['pairs']} pairs"
-               for e, f in figures.items() if f.get("pose_pairs", f["pairs"]) < f["pairs"] or f.get("gt_pairs", f["pairs"]) < f["pairs"]]
+               for e, f in figures.items() if e != GT_NAME and (f.get("pose_pairs", f["pairs"]) < f["pairs"] or f.get("gt_pairs", f["pairs"]) < f["pairs"])]
     if partial:
         lines += ["", "Only the pairs with ground truth count in the figures (a pose for AUC, any ground truth for NSGD "
                   "recall): " + "; ".join(partial[:1]) + (" (likewise the others)" if len(partial) > 1 else "") + "."]
-    undefined = [f"{_display(e)} {f['pose_undefined']}" for e, f in figures.items() if f.get("pose_undefined")]
-    if undefined:
-        lines += ["", "Pose undefined (too few evaluation matches to choose a decomposition of E by cheirality, and no "
-                  "ground-truth points): " + ", ".join(undefined) + " pairs, left out of pose AUC; not failures."]
+    if apart:
+        undefined = [f"{_display(e)} {f['pose_undefined']}" for e, f in figures.items() if f.get("pose_undefined") and e != GT_NAME]
+        lines += ["", f"{UNDEFINED_COLUMN[0].upper()}{UNDEFINED_COLUMN[1:]}: " + (", ".join(undefined) + " pairs. " if undefined else "")
+                  + f"An estimate's pose there cannot be chosen by cheirality (fewer than {MIN_POSE_POINTS} evaluation matches "
+                  "and no ground-truth points): the matcher gave too few, and the field's AUC counts it as an infinite error "
+                  f"(AUC@ columns); AUC@{slash}° ({WITH_POSE}) leaves those pairs out, a second figure not comparable with "
+                  "published ones. The ground truth never fails: on the pairs with too few matches (fewer than "
+                  f"{MIN_POSE_POINTS} evaluation matches, or too few for any estimator) its residuals are undefined, "
+                  "counted in that column, not as errors."]
     lines += [
         "",
         "Pose AUC: area under the recall curve of max(rotation error, translation-direction error) up to each threshold, "
-        "as LightGlue / glue-factory compute it ((R, t) from E = K_b^T F K_a by cheirality on the evaluation matches; "
-        "an error (no F) counts as an infinite error). NSGD recall: share of pairs whose FM-Bench normalized symmetric "
+        "over every pair with a ground-truth pose, as SuperGlue / LightGlue / glue-factory compute it ((R, t) from "
+        "E = K_b^T F K_a by cheirality on the evaluation matches; an error (no F), no pose recovered or a pose undefined "
+        "counts as an infinite error). NSGD recall: share of pairs whose FM-Bench normalized symmetric "
         "geometric distance is below the threshold (an error is a miss). Medians: of the per-pair median over the "
         "evaluation matches, over the pairs where the estimator gave an F. Fails: past the column's threshold or no value, "
         "the pairs `fviz compare` counts as fails. " + BASELINE_NOTE,
@@ -535,7 +600,7 @@ def run_markdown(config: RunConfig, stats: _Stats) -> str:
     without ground truth, which estimators agree."""
     ests = list(stats.order) or config.series_names()
     return "\n".join([f"**{config.selection.describe()}**: {stats.pairs} pairs ({stats.pair_errors} not evaluated: pair errors).",
-                      "", *figures_markdown(standard_figures(stats.per_pair, ests, failures=stats.failed)), "",
+                      "", *figures_markdown(standard_figures(stats.per_pair, ests, stats.known, stats.pair_gt, stats.failed)), "",
                       *failure_markdown(stats.failures.document()), *agreement_markdown(stats),
                       "Tabs: **metrics** (errors on log10 axes) and **motion** (one series per F over the `pair` timeline), **curves** (share "
                       "of the pairs below each threshold), and with `--full` the pairs' images. Every figure: summary.md."])
