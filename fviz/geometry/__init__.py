@@ -43,10 +43,12 @@ from fviz.geometry.residuals import algebraic, epipolar_residuals, sampson_dista
 
 __all__ = [
     "AUC_THRESHOLDS_DEG", "NSGD_RECALL_THRESHOLD", "essential_from_fundamental", "nearest_rotation", "gt_inlier_ratio", "nsgd", "pose_auc",
-    "recover_pose", "rotation_angle_deg", "rotation_error_deg", "translation_error_deg", "small_motion", "mean_motion_f", "scale_yaw", "yaw_deg",
+    "recover_pose", "rotation_angle_deg", "rotation_error_deg", "translation_error_deg", "small_motion", "mean_motion_f",
+    "scale_yaw", "yaw_deg",
     "NORMS", "Epipole", "NormalizationError", "algebraic",
     "epipolar_residuals", "border_point", "clip_lines", "describe_epipole",
     "enforce_rank2", "epipoles", "f_distance", "fundamental_from_motion", "fundamental_from_projections",
-    "apply_homography", "transfer_fundamental", "homogeneous", "is_valid", "lines_in_a", "lines_in_b", "normalize", "sampson_distance", "skew",
+    "apply_homography", "transfer_fundamental", "homogeneous", "is_valid", "lines_in_a", "lines_in_b", "normalize",
+    "sampson_distance", "skew",
     "symmetric_epipolar_distance", "PRECISION_KEYS", "match_precision", "normalized_epipolar_distance",
 ]

@@ -277,7 +277,8 @@ def summary_markdown(config: RunConfig, stats: _Stats) -> str:
         "# fviz eval",
         "",
         f"{config.selection.describe()}" + (f", shard {config.shard[0]}/{config.shard[1]}" if config.shard else "") + ".",
-        f"{stats.pairs} pairs ({stats.pair_errors} not evaluated: pair errors); features {o.features} (max {o.max_keypoints}, ratio {o.ratio}"
+        f"{stats.pairs} pairs ({stats.pair_errors} not evaluated: pair errors); features {o.features} "
+        f"(max {o.max_keypoints}, ratio {o.ratio}"
         f"{', mutual' if o.mutual else ''}); robust threshold {o.threshold} px; " + (
             "**no ground truth**: residuals over all matches, the estimators compared with each other (agreement_nsgd)."
             if stats.ground_truth == {"none"} else f"evaluation matches: GT symmetric epipolar distance < {config.eval_threshold} px."),
@@ -517,7 +518,8 @@ def figures_markdown(figures: dict[str, dict[str, Any]]) -> list[str]:
                      + f" | {_fmt(f['nsgd_recall'])} | {_fmt(f['sed_median'])} | {_fmt(f['sampson_median'])} | "
                      f"{f['errors']}/{f['pairs']} | {f['fails']}/{f['pairs']} |")
     partial = [f"{_display(e)}: pose AUC over {f['pose_pairs']} and NSGD recall over {f['gt_pairs']} of {f['pairs']} pairs"
-               for e, f in figures.items() if e != GT_NAME and (f.get("pose_pairs", f["pairs"]) < f["pairs"] or f.get("gt_pairs", f["pairs"]) < f["pairs"])]
+               for e, f in figures.items()
+               if e != GT_NAME and (f.get("pose_pairs", f["pairs"]) < f["pairs"] or f.get("gt_pairs", f["pairs"]) < f["pairs"])]
     if partial:
         lines += ["", "Only the pairs with ground truth count in the figures (a pose for AUC, any ground truth for NSGD "
                   "recall): " + "; ".join(partial[:1]) + (" (likewise the others)" if len(partial) > 1 else "") + "."]
@@ -602,7 +604,8 @@ def run_markdown(config: RunConfig, stats: _Stats) -> str:
     return "\n".join([f"**{config.selection.describe()}**: {stats.pairs} pairs ({stats.pair_errors} not evaluated: pair errors).",
                       "", *figures_markdown(standard_figures(stats.per_pair, ests, stats.known, stats.pair_gt, stats.failed)), "",
                       *failure_markdown(stats.failures.document()), *agreement_markdown(stats),
-                      "Tabs: **metrics** (errors on log10 axes) and **motion** (one series per F over the `pair` timeline), **curves** (share "
+                      "Tabs: **metrics** (errors on log10 axes) and **motion** (one series per F over the `pair` timeline), "
+                      "**curves** (share "
                       "of the pairs below each threshold), and with `--full` the pairs' images. Every figure: summary.md."])
 
 
