@@ -7,7 +7,8 @@ metric's own threshold
 (:data:`fviz.verdicts.FAIL_RULES`: ``sed_median > 2 px``, ``nsgd > 0.05``, ``inlier_ratio < 0.5``...; above it, or
 below it where higher is better), or past ``fail_threshold`` when given. A metric without a threshold fails only where
 there is no value. Every count of "fails" is labelled with its rule (:func:`fviz.verdicts.fails_label`). Wins and
-losses count the pairs where both sides have a value; a difference within the tolerance (``tie`` absolute, ``tie_rel`` relative to the larger of the two values) is a tie.
+losses count the pairs where both sides have a value; a difference within the tolerance (``tie`` absolute,
+``tie_rel`` relative to the larger of the two values) is a tie.
 
 The pairs where only one side fails are listed with where they sit in the run (one stretch of consecutive pairs is
 one event of the sequence: a turn, a stop) and the ``fviz inspect pair`` command that reopens each; compare.rrd
