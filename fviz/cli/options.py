@@ -56,17 +56,10 @@ def check_recording_path(path: Path | None) -> Path | None:
 
 def check_out_dir(path: Path, flag: str = "--out-dir") -> None:
     """A one-line error when ``path`` (or, before it exists, its nearest existing parent) is not a folder
-    fviz can write to; nothing is created here."""
-    import tempfile
+    fviz can write to; nothing is created here (:func:`fviz.api.runs.writable_folder`)."""
+    from fviz import api
 
-    probe = next((p for p in (path, *path.absolute().parents) if p.exists()), None)
-    if probe is None or not probe.is_dir():
-        raise FvizError(f"{flag} {path}: {probe} is not a folder")
-    try:
-        tempfile.TemporaryFile(dir=probe).close()
-    except OSError as exc:
-        where = "" if probe == path else f" (its parent {probe})"
-        raise FvizError(f"{flag} {path}: cannot write there{where}: {exc.strerror or exc}") from None
+    api.runs.writable_folder(path, flag)
 
 KittiRoot = Annotated[Optional[Path], typer.Option("--kitti-root", help=f"KITTI folder (odometry or raw layout); default ${KITTI_ROOT_ENV}.")]
 Sequence_ = Annotated[Optional[str], typer.Option("--sequence", help="Odometry sequence, e.g. 00.")]
