@@ -11,7 +11,7 @@ The public Python API (:mod:`fviz.api`), imported on first use so that ``import 
     fviz.triage_run, fviz.compare_runs, fviz.run_table, fviz.merge_runs, fviz.train
 """
 
-__version__ = "0.1.0"
+from fviz.version import __version__  # noqa: F401
 
 __all__ = ["Pair", "PairResult", "load_pair", "pair_from_images", "inspect_pair", "log_result", "save_recording",
            "log_training_step", "Selection", "Run", "select", "evaluate_run", "triage_run", "compare_runs", "run_table",

@@ -29,6 +29,7 @@ from fviz.api.names import python_errors
 from fviz.data.arrays import checked_matrix, pair_from_images
 from fviz.data.pair import Pair
 from fviz.errors import FvizError
+from fviz.estimators.options import MAX_KEYPOINTS  # noqa: F401 (max_keypoints' range: the command line checks it)
 from fviz.record.training import WATCH_POINTS, log_training_step, stream, watch_points
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -41,6 +42,17 @@ __all__ = ["Pair", "PairResult", "load_pair", "pair_from_images", "inspect_pair"
 
 KITTI_ROOT_ENV = "FVIZ_KITTI_ROOT"
 DEFAULT_ESTIMATORS = ("8point", "ransac", "magsac")  # fviz.estimators.registry.DEFAULT_ESTIMATORS (checked in tests)
+
+
+def threshold_specs(names: Sequence[str], threshold: float | Sequence[float] | str) -> tuple[tuple[str, ...], float]:
+    """(estimator names, the robust estimators' threshold in px) of a threshold: a number; a list of them or "sweep"
+    (0.25, 0.5, 1, 2, 4) runs each robust estimator at every value and its per-pair oracle (NAME@T, NAME@oracle)."""
+    from fviz.estimators.sweep import parse_threshold, sweep_specs
+
+    text = threshold if isinstance(threshold, str) else str(threshold) if isinstance(threshold, (int, float)) \
+        else ",".join(str(v) for v in threshold)
+    value, grid = parse_threshold(text)
+    return (sweep_specs(names, grid) if grid else tuple(names)), value
 
 
 def __getattr__(name: str):

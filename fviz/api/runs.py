@@ -275,8 +275,8 @@ def run_config(
     ``out_dir`` as it was configured (``estimators``, ``shard``, ``full`` and ``estimator_timeout`` applied to it)."""
     from dataclasses import replace
 
+    from fviz.api.pairs import threshold_specs
     from fviz.estimators.options import EstimatorOptions
-    from fviz.estimators.sweep import parse_threshold, sweep_specs
     from fviz.run import read_config
 
     existing = None if selection is not None else read_config(Path(out_dir))
@@ -286,9 +286,8 @@ def run_config(
             raise FvizError(f"--out-dir {out_dir}: no run to {'resume' if resume else 'use'} ({what}); "
                             "select pairs (--kitti-root/--sequence, or --synthetic --seeds A:B) to start one")
         selection = select()
-    value, grid = parse_threshold(_threshold_text(threshold))
-    names = tuple(estimators or (existing.options.names if existing else default_estimators()))
-    names = sweep_specs(names, grid) if grid else names
+    names, value = threshold_specs(tuple(estimators or (existing.options.names if existing else default_estimators())),
+                                   threshold)
     shard = _shard(shard)
     if existing is not None:
         if estimators:
@@ -308,15 +307,6 @@ def _options(options: dict[str, Any]) -> dict[str, Any]:
     if unknown:
         raise FvizError(f"{unknown[0]}: not an option of a run (options: {', '.join(known)})")
     return options
-
-
-def _threshold_text(threshold: float | Sequence[float] | str) -> str:
-    """A threshold (px), a list of them (a sweep) or "sweep", as the text :func:`parse_threshold` reads."""
-    if isinstance(threshold, str):
-        return threshold
-    if isinstance(threshold, (int, float)):
-        return str(threshold)
-    return ",".join(str(v) for v in threshold)
 
 
 def _shard(shard: tuple[int, int] | str | None) -> tuple[int, int] | None:

@@ -35,10 +35,10 @@ def fraction(flag: str) -> Callable:
 
 def check_threshold(value: str | None) -> str | None:
     """``--threshold``: a number > 0, ``sweep`` or a comma list of numbers, else a one-line error before any work."""
-    from fviz.estimators.sweep import parse_threshold
+    from fviz import api
 
     if value is None or value.strip() == "sweep" or "," in value:
-        return value if value is None else (parse_threshold(value) and value)
+        return value if value is None else (api.pairs.threshold_specs((), value) and value)
     try:
         number = float(value)
     except ValueError:
@@ -72,9 +72,10 @@ Features = Annotated[str, typer.Option("--features", help="sift, orb or akaze; w
 
 
 def _keypoints(value: int) -> int:
-    from fviz.estimators.options import MAX_KEYPOINTS  # lazily: numpy stays out of --help
+    from fviz import api  # lazily: numpy stays out of --help
 
-    return checked("--max-keypoints", lambda n: 1 <= n <= MAX_KEYPOINTS, f"must be 1 .. {MAX_KEYPOINTS}")(value)
+    top = api.pairs.MAX_KEYPOINTS
+    return checked("--max-keypoints", lambda n: 1 <= n <= top, f"must be 1 .. {top}")(value)
 
 
 MaxKeypoints = Annotated[int, typer.Option("--max-keypoints", help="Keypoints per image (1 .. 1000000).", callback=_keypoints)]
@@ -86,10 +87,9 @@ Threshold = Annotated[str, typer.Option("--threshold", metavar="PX|LIST|sweep", 
 
 def thresholds(names: tuple[str, ...], threshold: str) -> tuple[tuple[str, ...], float]:
     """(estimator specs, scalar threshold) of ``--estimator`` and ``--threshold`` (a sweep expands the specs)."""
-    from fviz.estimators.sweep import parse_threshold, sweep_specs
+    from fviz import api
 
-    value, grid = parse_threshold(str(threshold))
-    return (sweep_specs(names, grid) if grid else tuple(names)), value
+    return api.pairs.threshold_specs(names, str(threshold))
 Confidence = Annotated[float, typer.Option("--confidence", help="Confidence of robust estimators.", callback=fraction("--confidence"))]
 MaxIters = Annotated[int, typer.Option("--max-iters", help="Iteration cap of robust estimators.",
                                        callback=checked("--max-iters", lambda n: 1 <= n < 2**31, "must be 1 .. 2147483647"))]
