@@ -22,12 +22,15 @@ import os
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterator, Sequence
+from typing import TYPE_CHECKING, Any, Iterator, Sequence
 
 from fviz.api.names import python_errors, word
 from fviz.errors import FvizError
 from fviz.run.config import SUMMARY_JSON, RunConfig, Selection
 from fviz.run.store import RunOutcome
+
+if TYPE_CHECKING:  # pragma: no cover
+    from fviz.triage import TriageOutcome
 
 __all__ = ["Selection", "Run", "Compared", "select", "evaluate_run", "triage_run", "compare_runs", "run_table",
            "read_run", "merge_runs"]
@@ -368,7 +371,7 @@ def triage_run(
     workers: int | None = None,
     progress: bool = False,
     **options: Any,
-):
+) -> TriageOutcome:
     """Rank a run's pairs worst first by ``metric`` of estimator ``by``, with likely causes, and find the estimators
     that ignore their input or do worse than a baseline (``fviz triage``): triage.md and triage.rrd in the run folder.
 

@@ -6,10 +6,13 @@ from __future__ import annotations
 import contextlib
 import os
 from pathlib import Path
-from typing import Any, Sequence
+from typing import TYPE_CHECKING, Any, Sequence
 
 from fviz.api.names import python_errors
 from fviz.errors import FvizError
+
+if TYPE_CHECKING:  # pragma: no cover
+    from fviz.train.loop import TrainResult
 
 TRAIN_OUTPUTS = ("last.pt", "model.pt", "train.rrd", "heldout.json")
 _LOOP_NAMES = ("TrainingInterrupted", "VALIDATION_FIGURES", "versus_constants")
@@ -36,7 +39,7 @@ def worker_error_line(message: str) -> str:
 
 @python_errors
 def train(recipe: str | os.PathLike, overrides: Sequence[str] = (), *, resume: bool = False, progress: bool = True,
-          console: Any = None):
+          console: Any = None) -> TrainResult:
     """Train a fundamental-matrix network from a recipe (``fviz train``): last.pt, model.pt, train.rrd and
     heldout.json in the recipe's ``train.out_dir``.
 
@@ -48,8 +51,8 @@ def train(recipe: str | os.PathLike, overrides: Sequence[str] = (), *, resume: b
         console: a ``rich.console.Console`` for them (default: stderr).
 
     Returns:
-        The training's result (:class:`fviz.train.loop.TrainResult`: ``out_dir``, ``checkpoint``, ``weights``,
-        ``recording``, ``step``, ``metrics``, ``seconds``). Ctrl-C or SIGTERM stops after the current step and raises
+        The training's result: ``out_dir``, ``checkpoint``, ``weights``, ``recording``, ``step``, ``metrics``,
+        ``seconds``. Ctrl-C or SIGTERM stops after the current step and raises
         ``TrainingInterrupted`` (an FvizError: ``step``, ``checkpoint``; continue with ``resume=True``).
     """
     from rich.console import Console
