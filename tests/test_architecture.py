@@ -69,11 +69,6 @@ CLI_EXCEPTIONS = {
         "fviz.run.prestart": "rerun imported in the background while the features are computed",
         "fviz.viewer": "--spawn / --web: a display and a free port, checked before any work; the native viewer",
     },
-    "fviz.cli.browse": {
-        "fviz.record.reader": "open / summary read the recording (a one-line error on a foreign file)",
-        "fviz.viewer": "open: the native viewer, Rerun's web viewer",
-        "fviz.web.server": "open --web: fviz's click-serving web viewer",
-    },
 }
 
 
