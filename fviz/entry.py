@@ -9,12 +9,13 @@ import sys
 def main() -> None:
     import gc
 
-    from fviz.run.prestart import prestart
+    from fviz.run.prestart import prestart, take
 
-    prestart(sys.argv[1:])
+    prestart(sys.argv[1:])  # eval / triage: workers import while the options are parsed
     from fviz.cli import main as cli_main
 
     try:
         cli_main()
-    finally:  # the exit's last collection would walk every object numpy, rerun and pyarrow made (~0.15 s) to free nothing
-        gc.freeze()
+    finally:  # workers no run took (--help, a bad flag): they ignore SIGTERM, so multiprocessing could not end them;
+        take(0)
+        gc.freeze()  # the exit's last collection would walk every object numpy, rerun and pyarrow made (~0.15 s) to free nothing

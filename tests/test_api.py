@@ -115,7 +115,7 @@ def test_bad_arguments_name_themselves(from_arrays, kitti_pair):
 
 def test_load_pair_without_a_root_says_so(monkeypatch):
     monkeypatch.delenv("FVIZ_KITTI_ROOT", raising=False)
-    with pytest.raises(FvizError, match="kitti-root: missing"):
+    with pytest.raises(FvizError, match="^kitti_root: missing"):
         fviz.load_pair(sequence="00")
     assert fviz.load_pair(synthetic=True, seed=1).ground_truth == "pose"  # no dataset needed
 

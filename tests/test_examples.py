@@ -79,3 +79,38 @@ def test_own_training_loop(kitti_root, tmp_path):
     recorded = [v[0] for v in R.column(path, L.watch("f44", "sed_px"), "Scalars:scalars", "step")]
     np.testing.assert_allclose(recorded, [v[0] for v in printed.values()], rtol=1e-3)
     assert np.median(printed[60]) < np.median(printed[0]) / 5  # the network learnt
+
+
+def _runs_figures(text: str, run_dir: Path) -> None:
+    """What examples/runs.py and runs.ipynb print and write: eval -> triage -> compare -> table on 5 KITTI pairs."""
+    assert f"evaluated 5 pairs into {run_dir}" in text, text
+    sed = {m[1]: float(m[2]) for m in re.finditer(r"^(\w+)\s+median SED ([0-9.]+) px", text, re.M)}
+    assert list(sed) == ["gt", "8point", "magsac"] and sed["magsac"] < sed["8point"], text
+    assert len(re.findall(r"^worst #\d: odometry/00/", text, re.M)) == 3, text
+    wins = re.search(r"^8point vs magsac: (\d+) wins, (\d+) losses, (\d+) ties", text, re.M)
+    assert wins and sum(map(int, wins.groups())) >= 1, text
+    assert "| Method | ETR EPI-ABS" in text and "read back: 5 pairs, estimators 8point, magsac" in text, text
+    for name in ("results.jsonl", "summary.md", "eval.rrd", "triage.md", "triage.rrd", "compare.md", "compare.rrd", "table.md"):
+        assert (run_dir / name).is_file(), name
+
+
+def test_runs_script(kitti_root, tmp_path):
+    proc = subprocess.run([sys.executable, str(EXAMPLES / "runs.py"), str(tmp_path)], capture_output=True, text=True,
+                          cwd=tmp_path, env=_env(kitti_root), timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    _runs_figures(proc.stdout, tmp_path / "run")
+
+
+def test_runs_notebook_runs_headless(kitti_root, tmp_path):
+    nbformat = pytest.importorskip("nbformat")
+    nbclient = pytest.importorskip("nbclient")
+    nb = nbformat.read(EXAMPLES / "runs.ipynb", as_version=4)
+    env_before = dict(os.environ)
+    os.environ.update(_env(kitti_root, FVIZ_OUT=str(tmp_path)))  # the kernel inherits them
+    try:
+        nbclient.NotebookClient(nb, kernel_name="python3", timeout=300, resources={"metadata": {"path": str(EXAMPLES)}}).execute()
+    finally:
+        os.environ.clear()
+        os.environ.update(env_before)
+    text = "".join(o.get("text", "") for c in nb.cells if c.cell_type == "code" for o in c.outputs if o.output_type == "stream")
+    _runs_figures(text, tmp_path / "notebook_run")

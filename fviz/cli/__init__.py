@@ -55,12 +55,16 @@ INTERRUPTED = "nothing half-written was kept: a file being written was discarded
 
 
 def _interruptible(callback):
-    """``callback`` with Ctrl-C turned into :class:`fviz.errors.Interrupted` (which Typer lets through)."""
+    """``callback`` with Ctrl-C turned into :class:`fviz.errors.Interrupted` (which Typer lets through), run as the
+    command line (:func:`fviz.errors.command_line`: errors name its flags)."""
 
     @functools.wraps(callback)
     def run(*args, **kwargs):
+        from fviz.errors import command_line
+
         try:
-            return callback(*args, **kwargs)
+            with command_line():  # fviz.api's errors name the flags
+                return callback(*args, **kwargs)
         except KeyboardInterrupt:
             from fviz.errors import Interrupted
 
@@ -89,13 +93,12 @@ def command_hint(argv: list[str]) -> str | None:
 
 
 def main() -> None:
+    """The command line (the workers of eval / triage are started before it by :func:`fviz.entry.main`)."""
     from fviz.errors import FvizError, Interrupted
-    from fviz.run.prestart import prestart, take
 
     if (hint := command_hint(sys.argv[1:])) is not None:
         print(f"error: {hint}", file=sys.stderr)
         sys.exit(2)
-    prestart(sys.argv[1:])  # eval / triage: workers import while the options are parsed
     try:
         app()
     except FvizError as exc:
@@ -104,5 +107,3 @@ def main() -> None:
     except KeyboardInterrupt:  # outside any command (argument parsing, start-up)
         print(f"interrupted: {INTERRUPTED}", file=sys.stderr)
         sys.exit(130)
-    finally:
-        take(0)  # workers no run took (--help, a bad flag): they ignore SIGTERM, so multiprocessing could not end them

@@ -34,37 +34,6 @@ CLICK_HINT = ("clicks (a point's epipolar lines under every F) need a viewer tha
               "or fviz.notebook.open in Jupyter (the native viewer sends none; its probe tab steps through the worst matches)")
 
 
-def serve(path: Path, bind: str, port: int, web_port: int, blueprint: Optional[Path] = None, static: bool = False) -> None:
-    """The web viewer on ``path`` until Ctrl-C / SIGTERM / SIGHUP (``open --web`` and ``inspect --web``):
-    fviz's page, where a click draws the point's epipolar lines (:mod:`fviz.web`), or with ``static``
-    Rerun's own web viewer (``rerun --serve-web``: no clicks)."""
-    from fviz.errors import FvizError
-    from fviz.viewer import serve_web
-    from fviz.web.server import serve_clicks
-
-    for name, value in (("--port", port), ("--web-port", web_port)):
-        if not 0 < value < 65536:
-            raise FvizError(f"{name} {value}: not a port (1-65535)")
-    if bind not in ("127.0.0.1", "localhost", "::1"):
-        print(f"warning: --bind {bind}: the viewer and the recording are reachable from other machines", file=sys.stderr)
-    if static:
-        serve_web(path, bind, port, web_port, blueprint)
-    else:
-        serve_clicks(path, bind, web_port, blueprint)
-
-
-def tab_blueprint(path: Path, tab: str) -> Path:
-    """A blueprint file that opens ``path`` on tab ``tab`` (one-line error naming the tabs there are)."""
-    import tempfile
-
-    from fviz.record.reader import recording_blueprint
-
-    app_id, bp = recording_blueprint(path, active=tab)
-    out = Path(tempfile.mkdtemp(prefix="fviz-open-")) / f"{tab}.rbl"  # read by the viewer when it starts
-    bp.save(app_id, out)
-    return out
-
-
 def open_recording(
     path: Recording,
     web: Annotated[bool, typer.Option("--web", help="Serve the web viewer (until Ctrl-C) and print its URL; click a point there for its epipolar lines.")] = False,
@@ -75,50 +44,11 @@ def open_recording(
     tab: Annotated[Optional[str], typer.Option("--tab", help="Open on this tab: an estimator's name, overview, probe, metrics or motion.")] = None,
 ) -> None:
     """Open a recording in Rerun's native viewer, or with --web in the browser (served on 127.0.0.1)."""
-    from fviz.record.reader import open_rrd
-    from fviz.viewer import spawn_native
+    from fviz import api
 
-    open_rrd(path)  # one-line error on a missing, foreign or truncated file
-    blueprint = tab_blueprint(path, tab) if tab is not None else None
-    watched = False
-    try:
-        if web or web_static:
-            serve(path, bind, port, web_port, blueprint, static=web_static)
-            return
-        proc = spawn_native(path, blueprint)
-        if blueprint is not None:
-            remove_when_done(proc.pid, blueprint.parent)
-            watched = True
+    if api.viewing.open_recording(path, web=web, web_static=web_static, bind=bind, port=port, web_port=web_port, tab=tab):
         print(f"native viewer started on {path}")
         print(CLICK_HINT.format(path=path))
-    finally:
-        if blueprint is not None and not watched:  # the web viewer has stopped, or the viewer never started
-            import shutil
-
-            shutil.rmtree(blueprint.parent, ignore_errors=True)
-
-
-_WATCH = """import os, shutil, sys, time
-pid = int(sys.argv[1])
-while True:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        break
-    except PermissionError:
-        pass
-    time.sleep(0.5)
-shutil.rmtree(sys.argv[2], ignore_errors=True)
-"""
-
-
-def remove_when_done(pid: int, folder: Path) -> None:
-    """Remove ``folder`` (the --tab blueprint's temporary folder) once the viewer ``pid`` has exited: a small
-    detached watcher, since ``fviz open`` returns while the native viewer runs on."""
-    import subprocess
-
-    subprocess.Popen([sys.executable, "-c", _WATCH, str(pid), str(folder)], stdin=subprocess.DEVNULL,
-                     stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
 
 
 def _fmt(v: float | None) -> str:
@@ -135,9 +65,9 @@ def summary(
     from rich.console import Console
     from rich.table import Table
 
-    from fviz.record.reader import read_recording
+    from fviz import api
 
-    s = read_recording(path)
+    s = api.viewing.read_recording(path)
     if as_json:
         json.dump(s.to_dict(), sys.stdout, indent=2)
         sys.stdout.write("\n")

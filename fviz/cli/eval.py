@@ -14,7 +14,6 @@ The shared run options are declared once here (:data:`RUN_PARAMS`) and added to 
 from __future__ import annotations
 
 import inspect
-import os
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -22,6 +21,7 @@ from typing import Annotated, Any, Callable, Optional
 
 import typer
 
+from fviz import api
 from fviz.cli import options as o
 from fviz.errors import FvizError
 
@@ -107,55 +107,30 @@ class RunArgs:
         """Whether any selection flag was given (else a run in --out-dir is reused as configured)."""
         return any(self.values[k] not in (None, False) for k in SELECTION_FLAGS)
 
-    def config(self, default_estimators: tuple[str, ...], resume: bool = False):
-        """The RunConfig of the flags, or, without selection flags, the run already in --out-dir."""
-        from dataclasses import replace
+    def config(self, default_estimators: tuple[str, ...] = (), resume: bool = False):
+        """The RunConfig of the flags, or, without selection flags, the run already in --out-dir (``-e`` replacing
+        its estimators). Without ``-e``: the run's estimators, or fviz.api's default ones (``default_estimators``
+        is kept for callers that pass them)."""
+        return api.runs.run_config(self.out_dir, self.selection() if self.selects else None, resume=resume,
+                                   **self.options())
 
-        from fviz.estimators.options import EstimatorOptions
-        from fviz.run import RunConfig, parse_shard, read_config
-
-        existing = None if self.selects else read_config(self.out_dir)
-        if existing is None and not self.selects and (resume or not os.environ.get(o.KITTI_ROOT_ENV)):
-            what = "no such folder" if not Path(self.out_dir).exists() else "no run.json there"
-            raise FvizError(f"--out-dir {self.out_dir}: no run to {'resume' if resume else 'use'} ({what}); "
-                            "select pairs (--kitti-root/--sequence, or --synthetic --seeds A:B) to start one")
-        names, threshold = o.thresholds(tuple(self.estimator or default_estimators), self.threshold)
-        if existing is not None:
-            if self.estimator:
-                existing = replace(existing, options=replace(existing.options, names=names))
-            return replace(existing, shard=parse_shard(self.shard) if self.shard else existing.shard,
-                           full=existing.full or self.full, estimator_timeout=self.estimator_timeout)
-        opts = EstimatorOptions(names, self.features, self.max_keypoints, self.ratio, self.mutual, threshold,
-                                self.confidence, self.max_iters, self.seed)
-        return RunConfig(self.selection(), opts, self.norm, self.eval_threshold, self.full,
-                         parse_shard(self.shard) if self.shard else None, estimator_timeout=self.estimator_timeout)
+    def options(self) -> dict[str, Any]:
+        """The estimator and run options as :func:`fviz.api.evaluate_run` takes them."""
+        keys = ("features", "max_keypoints", "ratio", "mutual", "threshold", "confidence", "max_iters", "seed", "norm",
+                "eval_threshold", "estimator_timeout", "shard", "full")
+        return {"estimators": tuple(self.estimator) if self.estimator else None, **{k: self.values[k] for k in keys}}
 
     def selection(self):
-        from fviz.run import Selection
-
-        absolute = lambda p: None if p is None else os.path.abspath(Path(p).expanduser())  # noqa: E731
-        user = any(v is not None for v in (self.pairs, self.colmap, self.image_a, self.image_b))
-        root = None
-        if not self.synthetic and not user:
-            root = absolute(o.kitti_root(self.kitti_root))
-        elif self.kitti_root is not None:
-            root = absolute(self.kitti_root)  # refused by Selection, with the flag named
-        return Selection(
-            pairs=absolute(self.pairs), images=absolute(self.images), colmap=absolute(self.colmap),
-            min_shared=self.min_shared, matches=absolute(self.matches), gt_matches=absolute(self.gt_matches),
-            image_a=absolute(self.image_a), image_b=absolute(self.image_b), K=self.K, K_a=self.K_a, K_b=self.K_b,
-            T_ab=_file_or_numbers(self.T_ab), F_gt=_file_or_numbers(self.F_gt),
-            kitti_root=root, sequence=self.sequence, drive=self.drive,
+        """The selection flags, parsed, as :func:`fviz.api.select` takes them."""
+        return api.select(
+            self.kitti_root, sequence=self.sequence, drive=self.drive,
             kinds=tuple(split_list(self.pair_kind, "--pair")) or ("stereo",),
-            steps=tuple(int_list(self.step, "--step")) or (1,),
-            cams=o.parse_cams(self.cams), frames=parse_range(self.frames, "--frames", both=False),
-            synthetic=self.synthetic, seeds=parse_range(self.seeds, "--seeds", both=True) if self.seeds else None,
-        )
-
-
-def _file_or_numbers(text: str | None) -> str | None:
-    """--T-ab / --F-gt: a file's absolute path (the run may be resumed from elsewhere), or the numbers as given."""
-    return os.path.abspath(text) if text is not None and Path(text).is_file() else text
+            steps=tuple(int_list(self.step, "--step")) or (1,), cams=o.parse_cams(self.cams),
+            frames=parse_range(self.frames, "--frames", both=False), synthetic=self.synthetic,
+            seeds=parse_range(self.seeds, "--seeds", both=True) if self.seeds else None,
+            pairs=self.pairs, images=self.images, colmap=self.colmap, min_shared=self.min_shared, matches=self.matches,
+            gt_matches=self.gt_matches, image_a=self.image_a, image_b=self.image_b, K=self.K, K_a=self.K_a, K_b=self.K_b,
+            T_ab=self.T_ab, F_gt=self.F_gt)
 
 
 def split_list(values: list[str] | None, flag: str) -> list[str]:
@@ -208,8 +183,7 @@ def run_command(fn: Callable[..., None]) -> Callable[..., None]:
 
 def print_outcome(outcome, what: str = "eval") -> None:
     """One summary line and the report paths; on an interrupted run, how to finish it (exit 130)."""
-    from fviz.run.hloc_cache import FEATURES_FILE
-
+    FEATURES_FILE = api.runs.FEATURES_FILE
     err = sys.stderr
     print(f"{what}: {outcome.total} pairs ({outcome.reused} already done, {outcome.computed} evaluated now, "
           f"{outcome.failed} not evaluated (pair errors), {outcome.detections} feature detections, {outcome.cached_features} images' "
@@ -231,72 +205,24 @@ def print_outcome(outcome, what: str = "eval") -> None:
 def print_failures(out_dir: Path) -> None:
     """The run's failures grouped by cause (summary.json's ``failures``), one line each, and a ground truth biased
     over the run (``gt_bias``), on stderr."""
-    import json
-
-    from fviz.failures import failure_lines
-    from fviz.run.config import SUMMARY_JSON
-
-    path = Path(out_dir) / SUMMARY_JSON
-    try:
-        summary = json.loads(path.read_text())
-    except (OSError, ValueError):
-        return
-    for line in failure_lines(summary.get("failures")):
+    for line in api.Run(Path(out_dir), None).failure_lines():
         print(line, file=sys.stderr)
-    if summary.get("gt_bias"):
-        print(f"note: {summary['gt_bias']['text']}", file=sys.stderr)
-
-
-def cpu_cores() -> int:
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
-
-
-def worker_count(requested: int | None) -> int:
-    """--workers, capped at the CPU cores with a note (more processes only cost memory); default: the cores."""
-    from fviz.run.config import MIN_PAIRS_PER_WORKER
-
-    cores = cpu_cores()
-    if requested is not None and requested > cores:
-        print(f"note: --workers {requested} capped at {cores}, the CPU cores here (and at one worker per "
-              f"{MIN_PAIRS_PER_WORKER} pairs to evaluate)", file=sys.stderr)
-    return min(requested or cores, cores)
-
-
-def _default_estimators() -> tuple[str, ...]:
-    from fviz.estimators.registry import AHEAD, DEFAULT_ESTIMATORS
-
-    return (*DEFAULT_ESTIMATORS, AHEAD)
 
 
 def print_figures(out_dir: Path) -> None:
     """The standard figures of summary.json as a table on stdout."""
-    import json
-
     from rich.console import Console
     from rich.table import Table
 
-    from fviz.run.config import SUMMARY_JSON
-    from fviz.run.reports import UNDEFINED_COLUMN, WITH_POSE
-    from fviz.verdicts import ERRORS, fails_column
-
-    path = Path(out_dir) / SUMMARY_JSON
-    if not path.is_file():
+    figures = api.Run(Path(out_dir), None).figures()
+    if figures is None:
         return
-    doc = json.loads(path.read_text())
-    fmt = lambda v: "n/a" if v is None else f"{v:.3g}"  # noqa: E731
-    t = Table(title=f"{doc['selection']}: {doc['pairs']} pairs")
-    first = next(iter(doc["estimators"].values()), {"pose_auc": {}})
-    apart = any(f.get("pose_undefined") for f in doc["estimators"].values())  # say the undefined pairs apart
-    extra = [f"AUC@{'/'.join(first['pose_auc'])}° ({WITH_POSE})", UNDEFINED_COLUMN] if apart else []
-    for c in ["estimator", *(f"AUC@{k}°" for k in first["pose_auc"]), *extra, "NSGD recall", "med SED px", "med Sampson px",
-              ERRORS, fails_column()]:
+    title, header, rows = figures
+    t = Table(title=title)
+    for c in header:
         t.add_column(c, justify="left" if c == "estimator" else "right")
-    for name, f in doc["estimators"].items():
-        cells = ["/".join(fmt(v) for v in f.get("pose_auc_with_pose", {}).values()),
-                 f"{f.get('pose_undefined', 0)}/{f['pairs']}"] if apart else []
-        t.add_row(name + (" (oracle)" if f["oracle"] else ""), *(fmt(v) for v in f["pose_auc"].values()), *cells,
-                  fmt(f["nsgd_recall"]), fmt(f["sed_median"]), fmt(f["sampson_median"]), f"{f['errors']}/{f['pairs']}",
-                  f"{f['fails']}/{f['pairs']}")
+    for row in rows:
+        t.add_row(*row)
     Console(width=max(Console().width, 150)).print(t)
 
 
@@ -309,13 +235,10 @@ def eval_(args: RunArgs, resume: Resume = False) -> None:
 
     Without selection flags, --resume continues the run in --out-dir as it was configured. Ctrl-C keeps the reports of the finished pairs (exit 130).
     """
-    from fviz.run import run_eval
-
-    o.check_out_dir(args.out_dir)
-    config = args.config(_default_estimators(), resume)
-    outcome = run_eval(config, args.out_dir, worker_count(args.workers), resume, args.progress)
+    run = api.evaluate_run(args.selection() if args.selects else None, args.out_dir, workers=args.workers, resume=resume,
+                           progress=args.progress, **args.options())
     print_figures(args.out_dir)
-    print_outcome(outcome)
+    print_outcome(run.outcome)
     print_failures(args.out_dir)
 
 
@@ -324,10 +247,7 @@ def merge(
     out_dir: Annotated[Path, typer.Option("--out-dir", help="New run folder for the merged results.")],
 ) -> None:
     """Merge the run folders of `fviz eval --shard i/n` jobs into one run with all reports."""
-    from fviz.run import merge_runs
-
-    o.check_out_dir(out_dir)
-    print_outcome(merge_runs(dirs, out_dir), "merge")
+    print_outcome(api.merge_runs(dirs, out_dir).outcome, "merge")
 
 
 def register(app: typer.Typer) -> None:

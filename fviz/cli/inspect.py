@@ -122,9 +122,7 @@ def pair(
 
         spawn_native(path)
     if web:
-        from fviz.cli.browse import serve
-
-        serve(path, bind, port, web_port)
+        api.viewing.serve(path, bind, port, web_port)
     if too_few_matches(result):
         raise FvizError(
             f"only {result.n_matches} matches between {p.extra.get('path_a', 'image a')} and "

@@ -35,10 +35,10 @@ def fraction(flag: str) -> Callable:
 
 def check_threshold(value: str | None) -> str | None:
     """``--threshold``: a number > 0, ``sweep`` or a comma list of numbers, else a one-line error before any work."""
-    from fviz.estimators.sweep import parse_threshold
+    from fviz import api
 
     if value is None or value.strip() == "sweep" or "," in value:
-        return value if value is None else (parse_threshold(value) and value)
+        return value if value is None else (api.pairs.threshold_specs((), value) and value)
     try:
         number = float(value)
     except ValueError:
@@ -56,17 +56,10 @@ def check_recording_path(path: Path | None) -> Path | None:
 
 def check_out_dir(path: Path, flag: str = "--out-dir") -> None:
     """A one-line error when ``path`` (or, before it exists, its nearest existing parent) is not a folder
-    fviz can write to; nothing is created here."""
-    import tempfile
+    fviz can write to; nothing is created here (:func:`fviz.api.runs.writable_folder`)."""
+    from fviz import api
 
-    probe = next((p for p in (path, *path.absolute().parents) if p.exists()), None)
-    if probe is None or not probe.is_dir():
-        raise FvizError(f"{flag} {path}: {probe} is not a folder")
-    try:
-        tempfile.TemporaryFile(dir=probe).close()
-    except OSError as exc:
-        where = "" if probe == path else f" (its parent {probe})"
-        raise FvizError(f"{flag} {path}: cannot write there{where}: {exc.strerror or exc}") from None
+    api.runs.writable_folder(path, flag)
 
 KittiRoot = Annotated[Optional[Path], typer.Option("--kitti-root", help=f"KITTI folder (odometry or raw layout); default ${KITTI_ROOT_ENV}.")]
 Sequence_ = Annotated[Optional[str], typer.Option("--sequence", help="Odometry sequence, e.g. 00.")]
@@ -79,9 +72,10 @@ Features = Annotated[str, typer.Option("--features", help="sift, orb or akaze; w
 
 
 def _keypoints(value: int) -> int:
-    from fviz.estimators.options import MAX_KEYPOINTS  # lazily: numpy stays out of --help
+    from fviz import api  # lazily: numpy stays out of --help
 
-    return checked("--max-keypoints", lambda n: 1 <= n <= MAX_KEYPOINTS, f"must be 1 .. {MAX_KEYPOINTS}")(value)
+    top = api.pairs.MAX_KEYPOINTS
+    return checked("--max-keypoints", lambda n: 1 <= n <= top, f"must be 1 .. {top}")(value)
 
 
 MaxKeypoints = Annotated[int, typer.Option("--max-keypoints", help="Keypoints per image (1 .. 1000000).", callback=_keypoints)]
@@ -93,10 +87,9 @@ Threshold = Annotated[str, typer.Option("--threshold", metavar="PX|LIST|sweep", 
 
 def thresholds(names: tuple[str, ...], threshold: str) -> tuple[tuple[str, ...], float]:
     """(estimator specs, scalar threshold) of ``--estimator`` and ``--threshold`` (a sweep expands the specs)."""
-    from fviz.estimators.sweep import parse_threshold, sweep_specs
+    from fviz import api
 
-    value, grid = parse_threshold(str(threshold))
-    return (sweep_specs(names, grid) if grid else tuple(names)), value
+    return api.pairs.threshold_specs(names, str(threshold))
 Confidence = Annotated[float, typer.Option("--confidence", help="Confidence of robust estimators.", callback=fraction("--confidence"))]
 MaxIters = Annotated[int, typer.Option("--max-iters", help="Iteration cap of robust estimators.",
                                        callback=checked("--max-iters", lambda n: 1 <= n < 2**31, "must be 1 .. 2147483647"))]

@@ -22,14 +22,14 @@ def table(run_dir: Optional[Path] = typer.Argument(None, metavar="RUN", help="An
     Example: fviz eval --synthetic --seeds 0:500 -e 8point -e lmeds -e ransac -e deep:runs/a/model.pt ...
     --out-dir runs/t && fviz table runs/t
     """
+    from fviz import api
     from fviz.cli.triage import one_run_folder
     from fviz.errors import FvizError
-    from fviz.table import write_table
 
     run_dir = one_run_folder(run_dir, out_dir)
     if run_dir is None:
         raise FvizError("table: give the run folder, as RUN or --out-dir RUN")
-    md, csv_path = write_table(run_dir)
+    md, csv_path = api.run_table(run_dir)
     print(md.read_text(), end="")
     print(f"written: {md} {csv_path}")
 

@@ -11,6 +11,7 @@ from typing import Annotated, Optional
 
 import typer
 
+from fviz import api
 from fviz.cli import options as o
 from fviz.cli.eval import DEFAULT_OUT_DIR, RunArgs, print_outcome, run_command
 from fviz.errors import FvizError
@@ -44,15 +45,11 @@ def triage(args: RunArgs, run: RunDir = None, by: By = None, metric: Metric = "s
     Runs eval first with resume semantics: a finished run in --out-dir is reused (its estimators kept, only missing
     pairs or estimators computed). Without selection flags, the run in --out-dir is triaged as it was configured.
     """
-    from fviz.cli.eval import _default_estimators, print_failures, print_figures, worker_count
-    from fviz.run.store import locked
-    from fviz.triage import run_triage
+    from fviz.cli.eval import print_failures, print_figures
 
     args.values["out_dir"] = one_run_folder(run, args.out_dir, DEFAULT_OUT_DIR)
-    o.check_out_dir(args.out_dir)
-    config = args.config(_default_estimators())  # before the lock, which creates --out-dir: "no such folder" stays true
-    with locked(args.out_dir):  # eval inside and triage's own reports: one run owns the folder
-        result = run_triage(config, args.out_dir, by, metric, top, worker_count(args.workers), args.progress)
+    result = api.triage_run(args.out_dir, args.selection() if args.selects else None, by=by, metric=metric, top=top,
+                            workers=args.workers, progress=args.progress, **args.options())
     print_figures(args.out_dir)
     print_outcome(result.eval, "triage")
     _print_findings(result)
@@ -103,39 +100,34 @@ def compare(
     """Wins, losses and ties of estimator a against b pair by pair, Wilcoxon's signed-rank test of the differences,
     the pairs where only one of them fails (where they sit in the run, the command reopening each), and every
     pair's difference (compare.md); compare.rrd beside it plots both per pair."""
-    from fviz.compare import COMPARE_FILE, Side, compare as run_compare, write_compare
     out_dir = one_run_folder(run, out_dir)
     if run_a or run_b:
         if not (run_a and run_b and estimator) or a or b:
             raise FvizError("compare: give --run-a D1 --run-b D2 --estimator NAME, or --out-dir D --a NAME --b NAME")
-        sides, dest = (Side(run_a, estimator), Side(run_b, estimator)), out_dir or run_a
+        runs, names, dest = (run_a, run_b), estimator, out_dir or run_a
     else:
         if not (out_dir and a and b):
             raise FvizError("compare: give --out-dir D --a NAME --b NAME, or --run-a D1 --run-b D2 --estimator NAME")
-        sides, dest = (Side(out_dir, a), Side(out_dir, b)), out_dir
-    path = out or Path(dest) / COMPARE_FILE
+        runs, names, dest = (out_dir, None), (a, b), out_dir
+    path = out or Path(dest) / api.runs.COMPARE_FILE
     o.check_out_dir(path.parent, "--out" if out else "--out-dir")
-    c = run_compare(*sides, metric=metric, fail_threshold=fail_threshold, tie=tie, tie_rel=tie_rel)
-    path, replaced = write_compare(c, path, force)
-    _print_comparison(c, path, replaced)
+    c = api.compare_runs(*runs, estimators=names, metric=metric, fail_threshold=fail_threshold, tie=tie, tie_rel=tie_rel,
+                         out=path, force=force)
+    _print_comparison(c)
 
 
-def _print_comparison(c, path: Path, replaced: bool) -> None:
+def _print_comparison(c) -> None:
     from rich.console import Console
     from rich.table import Table
-
-    from fviz.compare import summary_rows
 
     t = Table(title=f"{c.a.label} vs {c.b.label}: {c.metric}")
     t.add_column("")
     t.add_column("value", justify="right")
-    for what, n in summary_rows(c):
+    for what, n in c.rows():
         t.add_row(what, n)
     Console().print(t)
-    from fviz.compare import recording_path
-
-    print(f"{path} (replaced the previous version)" if replaced else path, file=sys.stderr)
-    print(f"{recording_path(path)} (the per-pair plot: fviz open {recording_path(path)})", file=sys.stderr)
+    print(f"{c.markdown} (replaced the previous version)" if c.replaced else c.markdown, file=sys.stderr)
+    print(f"{c.recording} (the per-pair plot: fviz open {c.recording})", file=sys.stderr)
 
 
 def register(app: typer.Typer) -> None:

@@ -48,9 +48,9 @@ def git_commit() -> str | None:
 
 
 def code_version() -> dict[str, Any]:
-    import fviz
+    from fviz.version import __version__
 
-    return {"fviz": fviz.__version__, "git": git_commit(), "torch": str(torch.__version__)}
+    return {"fviz": __version__, "git": git_commit(), "torch": str(torch.__version__)}
 
 
 def _unwrap(model: torch.nn.Module) -> torch.nn.Module:

@@ -356,7 +356,7 @@ class _Curves:
                     rec.set_time(TRAIN_TIMELINE, sequence=step)
                     rec.log(TRAIN_VERDICT, rr.TextLog(text, level="WARN" if text.startswith(NO_BETTER) else "INFO"))
             if self.pairs:
-                from fviz.api import log_training_step
+                from fviz.record.training import log_training_step
 
                 t0 = time.perf_counter()
                 for step, F in self.frames:
@@ -913,7 +913,7 @@ def train(  # noqa: C901, PLR0915 (issue 41: to split into losses / state / curv
 def watched_pairs(val_ds, n: int, device: torch.device) -> tuple[list, tuple[torch.Tensor, torch.Tensor] | None]:
     """The first ``n`` validation pairs as :class:`fviz.Pair` (the model's input images, F in its pixels) and as
     the model's input batch (img_a, img_b (n, 1, H, W) on ``device``); ([], None) without them."""
-    from fviz.api import pair_from_images
+    from fviz.data.arrays import pair_from_images
 
     n = min(n, len(val_ds) if val_ds is not None else 0)
     if n == 0:

@@ -1,0 +1,112 @@
+"""Recordings from Python: open one in a viewer (Rerun's native one, or fviz's web page where a click draws a point's
+epipolar lines), read its pairs and metrics back. ``fviz open``, ``fviz summary`` and ``fviz inspect pair --web``
+are clients of these functions. Works on any fviz recording (``inspect``, ``eval``, ``triage``, ``compare``)."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Optional
+
+from fviz.api.names import python_errors, word
+
+
+def serve(path: Path, bind: str, port: int, web_port: int, blueprint: Optional[Path] = None, static: bool = False) -> None:
+    """The web viewer on ``path`` until Ctrl-C / SIGTERM / SIGHUP (``open --web`` and ``inspect --web``):
+    fviz's page, where a click draws the point's epipolar lines (:mod:`fviz.web`), or with ``static``
+    Rerun's own web viewer (``rerun --serve-web``: no clicks)."""
+    from fviz.errors import FvizError
+    from fviz.viewer import serve_web
+    from fviz.web.server import serve_clicks
+
+    for name, value in (("--port", port), ("--web-port", web_port)):
+        if not 0 < value < 65536:
+            raise FvizError(f"{name} {value}: not a port (1-65535)")
+    if bind not in ("127.0.0.1", "localhost", "::1"):
+        print(f"warning: {word('--bind')} {bind}: the viewer and the recording are reachable from other machines", file=sys.stderr)
+    if static:
+        serve_web(path, bind, port, web_port, blueprint)
+    else:
+        serve_clicks(path, bind, web_port, blueprint)
+
+
+def tab_blueprint(path: Path, tab: str) -> Path:
+    """A blueprint file that opens ``path`` on tab ``tab`` (one-line error naming the tabs there are)."""
+    import tempfile
+
+    from fviz.record.reader import recording_blueprint
+
+    app_id, bp = recording_blueprint(path, active=tab)
+    out = Path(tempfile.mkdtemp(prefix="fviz-open-")) / f"{tab}.rbl"  # read by the viewer when it starts
+    bp.save(app_id, out)
+    return out
+
+
+_WATCH = """import os, shutil, sys, time
+pid = int(sys.argv[1])
+while True:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        break
+    except PermissionError:
+        pass
+    time.sleep(0.5)
+shutil.rmtree(sys.argv[2], ignore_errors=True)
+"""
+
+
+def remove_when_done(pid: int, folder: Path) -> None:
+    """Remove ``folder`` (the --tab blueprint's temporary folder) once the viewer ``pid`` has exited: a small
+    detached watcher, since ``fviz open`` returns while the native viewer runs on."""
+    import subprocess
+
+    subprocess.Popen([sys.executable, "-c", _WATCH, str(pid), str(folder)], stdin=subprocess.DEVNULL,
+                     stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+
+
+@python_errors
+def open_recording(path: str | Path, *, web: bool = False, web_static: bool = False, bind: str = "127.0.0.1",
+                   port: int = 9876, web_port: int = 9090, tab: Optional[str] = None) -> bool:
+    """Open a recording in Rerun's native viewer (returns at once: True), or with ``web`` serve fviz's web viewer
+    (``web_static``: Rerun's own, no clicks) on ``bind``:``web_port`` until Ctrl-C / SIGTERM (then False).
+
+    Args:
+        path: a ``*.rrd`` written by fviz (a one-line error on a missing, foreign or truncated file).
+        web: serve fviz's web page, where a click draws the point's epipolar lines under every F.
+        web_static: serve Rerun's own web viewer (``rerun --serve-web``; its recording server on ``port``).
+        bind: the address served on (0.0.0.0 exposes the recording to the network, with a warning).
+        port: Rerun's recording (gRPC) server, with ``web_static`` only.
+        web_port: the web viewer's page.
+        tab: open on this tab: an estimator's name, overview, probe, metrics or motion.
+    """
+    from fviz.record.reader import open_rrd
+    from fviz.viewer import spawn_native
+
+    path = Path(path)
+    open_rrd(path)  # one-line error on a missing, foreign or truncated file
+    blueprint = tab_blueprint(path, tab) if tab is not None else None
+    watched = False
+    try:
+        if web or web_static:
+            serve(path, bind, port, web_port, blueprint, static=web_static)
+            return False
+        proc = spawn_native(path, blueprint)
+        if blueprint is not None:
+            remove_when_done(proc.pid, blueprint.parent)
+            watched = True
+        return True
+    finally:
+        if blueprint is not None and not watched:  # the web viewer has stopped, or the viewer never started
+            import shutil
+
+            shutil.rmtree(blueprint.parent, ignore_errors=True)
+
+
+@python_errors
+def read_recording(path: str | Path):
+    """The pairs and metrics stored in a recording (``fviz summary``): ``items`` (one per pair: ``name``, ``metrics``
+    by estimator, ``errors``), ``metrics``, ``timeline``, ``app_id``; ``to_dict()`` is ``fviz summary --json``."""
+    from fviz.record.reader import read_recording as read
+
+    return read(Path(path))
