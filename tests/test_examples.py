@@ -45,18 +45,23 @@ def test_quickstart_script(kitti_root, tmp_path):
     np.testing.assert_allclose(values, list(sed.values()), atol=5e-4)  # the printed figures are the recorded ones
 
 
-def test_notebook_runs_headless(kitti_root, tmp_path):
+def _run_notebook(name: str, kitti_root, out) -> list:
+    """Execute ``examples/NAME`` headless (its kernel inherits FVIZ_OUT=out and the KITTI root) -> its code cells' outputs."""
     nbformat = pytest.importorskip("nbformat")
     nbclient = pytest.importorskip("nbclient")
-    nb = nbformat.read(EXAMPLES / "quickstart.ipynb", as_version=4)
+    nb = nbformat.read(EXAMPLES / name, as_version=4)
     env_before = dict(os.environ)
-    os.environ.update(_env(kitti_root, FVIZ_OUT=str(tmp_path)))  # the kernel inherits them
+    os.environ.update(_env(kitti_root, FVIZ_OUT=str(out)))
     try:
         nbclient.NotebookClient(nb, kernel_name="python3", timeout=300, resources={"metadata": {"path": str(EXAMPLES)}}).execute()
     finally:
         os.environ.clear()
         os.environ.update(env_before)
-    outputs = [o for c in nb.cells if c.cell_type == "code" for o in c.outputs]
+    return [o for c in nb.cells if c.cell_type == "code" for o in c.outputs]
+
+
+def test_notebook_runs_headless(kitti_root, tmp_path):
+    outputs = _run_notebook("quickstart.ipynb", kitti_root, tmp_path)
     text = "".join(o.get("text", "") for o in outputs if o.output_type == "stream")
     sed = _sed_rows(text)
     assert list(sed) == ["gt", "magsac", "mine"] and sed["magsac"] < 0.5 < sed["mine"]
@@ -102,15 +107,6 @@ def test_runs_script(kitti_root, tmp_path):
 
 
 def test_runs_notebook_runs_headless(kitti_root, tmp_path):
-    nbformat = pytest.importorskip("nbformat")
-    nbclient = pytest.importorskip("nbclient")
-    nb = nbformat.read(EXAMPLES / "runs.ipynb", as_version=4)
-    env_before = dict(os.environ)
-    os.environ.update(_env(kitti_root, FVIZ_OUT=str(tmp_path)))  # the kernel inherits them
-    try:
-        nbclient.NotebookClient(nb, kernel_name="python3", timeout=300, resources={"metadata": {"path": str(EXAMPLES)}}).execute()
-    finally:
-        os.environ.clear()
-        os.environ.update(env_before)
-    text = "".join(o.get("text", "") for c in nb.cells if c.cell_type == "code" for o in c.outputs if o.output_type == "stream")
+    outputs = _run_notebook("runs.ipynb", kitti_root, tmp_path)
+    text = "".join(o.get("text", "") for o in outputs if o.output_type == "stream")
     _runs_figures(text, tmp_path / "notebook_run")
