@@ -78,10 +78,10 @@ def _eval(tmp_path, name, *source):
 def test_raw_oxts_pairs_report_the_bias_and_an_exact_ground_truth_does_not(kitti_root, tmp_path):
     raw, proc = _eval(tmp_path, "raw", "--kitti-root", kitti_root, "--drive", "2011_09_26_drive_0002", "--frames", "0:10")
     bias = json.loads((raw / "summary.json").read_text())["gt_bias"]
-    # USAC-accurate's epipole below the oxts one on 8 of 9 pairs by ~4 px, MAGSAC++'s on the same side (in x they
-    # disagree: MAGSAC++ left, USAC-accurate on both sides; with RANSAC, whose epipole sits right, no claim at all)
-    assert bias["estimator"] == "usac-accurate" and bias["axis"] == "y" and bias["median_deg"] > 0.2 and bias["p"] < 0.05
-    assert bias["confirmed_by"] == ["magsac"]
+    # USAC-accurate's and MAGSAC++'s epipoles left of the oxts one on most pairs, ~0.8 deg (~10 px), both robust
+    # estimators on the same side (with RANSAC, whose forward epipole scatters to both sides, no claim at all)
+    assert bias["estimator"] in ("magsac", "usac-accurate") and bias["axis"] == "x" and bias["median_deg"] < -0.3
+    assert bias["p"] < 0.05 and bias["confirmed_by"] == [({"magsac", "usac-accurate"} - {bias["estimator"]}).pop()]
     assert "ground truth biased" in (raw / "summary.md").read_text().lower() and "ground truth biased" in proc.stderr
     exact, _ = _eval(tmp_path, "synthetic", "--synthetic", "--seeds", "0:10")  # exact ground truth: no side
     assert json.loads((exact / "summary.json").read_text())["gt_bias"] is None
