@@ -141,8 +141,8 @@ def input_mistake(diag: dict[str, Any] | None) -> dict[str, str] | None:
     n = int(_num((diag or {}).get("n_matches")))
     pp = _num(ev.get("pp_offset"))
     if pp > K_CENTRE_OFFSET:
-        return {"detail": "K", "text": f"K's principal point lies {pp:.0%} of the image away from its centre: a K for "
-                f"another image size or crop? The ground truth's lines and the pose errors rest on it"}
+        return {"detail": "K", "text": f"K's principal point lies {pp:.0%} of the image from its centre: a K for another "
+                "image size or crop? F_gt's lines and the pose errors rest on it"}
     given = _num(ev.get("ncc_given"))
 
     def looks(key: str) -> bool:
@@ -154,21 +154,20 @@ def input_mistake(diag: dict[str, Any] | None) -> dict[str, str] | None:
                 and ev[k] >= max(MIN_EVIDENCE, INPUT_MIN_SHARE * n))
 
     def numbers(d: str, k: str, ncc: str) -> str:
-        look = f"; their patches correlate {_num(ev.get(ncc)):.2f} so against {given:.2f} as given" if looks(ncc) else ""
-        return (f"F_gt's lines pass a median {_num(ev.get(d)):.2g} px from them so ({ev[k]} of the {n} within "
-                f"{EVAL_THRESHOLD_PX:g} px), {ev['d_gt']:.3g} px as given{look}")
+        look = f"; patches correlate {_num(ev.get(ncc)):.2f} so, {given:.2f} as given" if looks(ncc) else ""
+        return (f"F_gt's lines {_num(ev.get(d)):.2g} px from them so ({ev[k]}/{n} within {EVAL_THRESHOLD_PX:g} px), "
+                f"{ev['d_gt']:.3g} px as given{look}")
 
     if looks("ncc_swapped") or fits("d_swapped", "n_swapped"):
         return {"detail": "swapped", "text": "the matches fit with images a and b swapped: "
-                f"{numbers('d_swapped', 'n_swapped', 'ncc_swapped')}: are the matches' columns (x_b y_b x_a y_a) or "
-                "the two images in the wrong order?"}
+                f"{numbers('d_swapped', 'n_swapped', 'ncc_swapped')}: columns x_b y_b x_a y_a, or the images in the "
+                "wrong order?"}
     if looks("ncc_scaled") or fits("d_scaled", "n_scaled"):
         s = ev.get("ncc_scale") if looks("ncc_scaled") else ev["scale"]
         fx, fy = ev["extent"]
-        spread = f"; they reach {fx:.0%} of the images' width and {fy:.0%} of their height" if max(fx, fy) < 0.8 else ""
+        spread = f"; they reach {fx:.0%} of the images' width, {fy:.0%} of their height" if max(fx, fy) < 0.8 else ""
         return {"detail": "scale", "text": f"the matches fit at {s:.3g}x their coordinates: "
-                f"{numbers('d_scaled', 'n_scaled', 'ncc_scaled')}{spread}: matches made on images of another "
-                "resolution?"}
+                f"{numbers('d_scaled', 'n_scaled', 'ncc_scaled')}{spread}: made on images of another resolution?"}
     return None
 
 

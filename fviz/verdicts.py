@@ -208,8 +208,7 @@ def pair_verdict(rec: dict, by: str | None = None) -> Verdict:
         v = _agreement_verdict(res, [e["name"] for e in judged if not e.get("error")])
         return Verdict(v.kind, v.text + "".join(f"; {name} {why}" for name, why in failing))
     if mistake := input_mistake(diag):
-        return Verdict(INPUTS, mistake["text"] + "; the metrics against F_gt mean nothing until the inputs agree",
-                       mistake["detail"])
+        return Verdict(INPUTS, mistake["text"], mistake["detail"])  # the metrics against F_gt mean nothing so
     suspect = gt_suspect(diag, rows)
     if res["n_eval"] == 0:
         why = f"ground truth suspect: {suspect['short']}" if suspect else "the matcher or the ground truth is wrong"
