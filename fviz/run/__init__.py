@@ -32,7 +32,7 @@ frames; the main process keeps only file offsets of results.jsonl and per-metric
 
 _EXPORTS = {
     "RunConfig": "config", "Selection": "config", "parse_shard": "config", "PairEvaluator": "evaluator",
-    "run_eval": "execute", "log_summary_pair": "reports", "merge_runs": "reports", "write_reports": "reports",
+    "run_eval": "execute", "log_summary_pair": "recording", "merge_runs": "merge", "write_reports": "reports",
     "ResultStore": "store", "read_config": "store", "result_from_record": "store",
 }
 __all__ = sorted(_EXPORTS)

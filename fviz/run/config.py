@@ -9,15 +9,13 @@ from typing import Any, Callable
 
 import numpy as np
 
-from fviz.estimators.baselines import constant_estimator, mean_fundamental
-from fviz.estimators.options import MAX_KEYPOINTS, EstimatorOptions
-from fviz.estimators.registry import MEAN_PREFIX, ORACLE_MEAN, is_run_baseline
 from fviz.data.kitti import PAIR_KINDS
 from fviz.data.pair import PairId
 from fviz.errors import FvizError
+from fviz.estimators.baselines import constant_estimator, mean_fundamental
+from fviz.estimators.options import MAX_KEYPOINTS, EstimatorOptions
+from fviz.estimators.registry import MEAN_PREFIX, ORACLE_MEAN, is_run_baseline
 from fviz.evaluate import EVAL_THRESHOLD_PX, GT_NAME
-
-
 
 RUN_FILE = "run.json"
 RESULTS_FILE = "results.jsonl"

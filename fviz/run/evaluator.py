@@ -35,8 +35,8 @@ class PairEvaluator:
     """Evaluates pairs of one run, keeping features of recent frames (one per worker process)."""
 
     def __init__(self, config: RunConfig, out_dir: Path, detect_threads: int = 2, batched: tuple[str, ...] = ()):
-        from fviz.estimators.features import FeatureCache
         from fviz.diagnose import diagnose
+        from fviz.estimators.features import FeatureCache
         from fviz.run.hloc_cache import RunCache, digest
 
         self.config, self.out_dir = config, Path(out_dir)

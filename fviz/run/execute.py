@@ -11,21 +11,25 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any, Callable
 
-from fviz.data.pair import PairId
 from fviz.atomic import WriteError
+from fviz.data.pair import PairId
 from fviz.errors import FvizError
-from fviz.run.prestart import WORKER_PRELOAD
-from fviz.run.evaluator import CACHE_FRESH, CACHE_NOTES, PairEvaluator, PairTask, error_message, new_record
 from fviz.run.config import MIN_PAIRS_PER_WORKER, RESULTS_FILE, RunConfig, prepare
+from fviz.run.evaluator import CACHE_FRESH, CACHE_NOTES, PairEvaluator, PairTask, error_message, new_record
 from fviz.run.hloc_cache import CacheWriter
+from fviz.run.prestart import WORKER_PRELOAD
 from fviz.run.reports import write_reports
-from fviz.run.worker import DEEP_PRELOAD
 from fviz.run.store import (
-    ResultStore, RunOutcome, locked, merge_record, payload_path, read_config, read_records,
+    ResultStore,
+    RunOutcome,
+    locked,
+    merge_record,
+    payload_path,
+    read_config,
+    read_records,
     write_config,
 )
-
-
+from fviz.run.worker import DEEP_PRELOAD
 
 
 class FrameSchedule:
@@ -310,9 +314,8 @@ class WorkerPool:
 def start_pool(config: RunConfig, workers: int, n_pairs: int) -> WorkerPool | None:
     """Worker processes for a run of ``n_pairs``, started before the run is prepared so that their
     imports overlap the main process's; None when one process does it (see :func:`pool_size`)."""
-    from fviz.run import prestart
-
     from fviz.estimators.registry import is_user_spec
+    from fviz.run import prestart
 
     n = pool_size(workers, n_pairs)
     isolate = n <= 1 and n_pairs > 0 and any(is_user_spec(s) for s in config.options.names)
@@ -430,7 +433,12 @@ class _Progress:
         if self.enabled and self.bar is None:
             from rich.console import Console
             from rich.progress import (
-                BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn,
+                BarColumn,
+                MofNCompleteColumn,
+                Progress,
+                TextColumn,
+                TimeElapsedColumn,
+                TimeRemainingColumn,
             )
 
             self.bar = Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),

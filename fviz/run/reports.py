@@ -7,30 +7,51 @@ import csv
 import json
 import math
 from array import array
-from dataclasses import replace
 from pathlib import Path
-from typing import Any, Iterable, Iterator
+from typing import Any, Iterable
 
 import numpy as np
 
 from fviz.atomic import WriteError, replacing, write_text
-from fviz.data.pair import PairId
-from fviz.errors import FvizError, Interrupted
 from fviz.diagnose import gt_bias, pair_epipole_offset
+from fviz.errors import Interrupted
+from fviz.evaluate import GT_NAME
 from fviz.failures import Failures, failure_markdown
-from fviz.verdicts import ERRORS, fail_rule, fails_column
-from fviz.evaluate import GT_NAME, PairResult
-from fviz.geometry.pose import MIN_POSE_POINTS
-from fviz.run.config import _FLAGS, _flatten, _show  # noqa: E402  (a refused merge names the flags)
-from fviz.run.config import (
-    CSV_FILE, INT_COLUMNS, PAPER_COLUMNS, PAPER_NORMS, PARQUET_FILE, PERCENTILES, RESULTS_FILE, RRD_FILE,
-    RUN_FILE, SUMMARY_FILE, SUMMARY_JSON, SUMMARY_METRICS, TEXT_COLUMNS, RunConfig,
+from fviz.run.config import (  # noqa: E402  (a refused merge names the flags)
+    CSV_FILE,
+    INT_COLUMNS,
+    PAPER_COLUMNS,
+    PAPER_NORMS,
+    PARQUET_FILE,
+    PERCENTILES,
+    RESULTS_FILE,
+    RRD_FILE,
+    SUMMARY_FILE,
+    SUMMARY_JSON,
+    SUMMARY_METRICS,
+    TEXT_COLUMNS,
+    RunConfig,
 )
+from fviz.run.figures import (  # noqa: F401 (re-exported: table, api and tests read them here)
+    BASELINE_NOTE,
+    EPI_CAVEAT,
+    FIGURE_KEYS,
+    UNDEFINED,
+    UNDEFINED_COLUMN,
+    WITH_POSE,
+    _display,
+    _fmt,
+    figures_known,
+    figures_markdown,
+    row_failed,
+    row_kind,
+    standard_figures,
+)
+from fviz.run.recording import iter_rows, write_recording
 from fviz.run.store import (
-    ResultStore, RunOutcome, holder_of, load_payload, locked, payload_ok, payload_path, read_config, read_records, record_rows,
-    result_from_record, write_config,
+    ResultStore,
 )
-
+from fviz.verdicts import ERRORS, fail_rule
 
 
 def _columns(rows_iter: Iterable[dict[str, Any]]) -> list[str]:
@@ -40,63 +61,11 @@ def _columns(rows_iter: Iterable[dict[str, Any]]) -> list[str]:
     return list(cols)
 
 
-def iter_rows(out_dir: Path, config: RunConfig, entries: list | None = None
-              ) -> Iterator[tuple[dict[str, Any], PairResult, list[dict[str, Any]]]]:
-    """(record, its PairResult, its CSV rows) of each pair, by index; ``entries``: the run's
-    (:meth:`ResultStore.latest`) when the caller has them already (results.jsonl is then not scanned again)."""
-    if entries is None:
-        entries = list(ResultStore(out_dir, config).latest().values())
-    for rec in read_records(entries):
-        result = result_from_record(rec, config)
-        yield rec, result, record_rows(rec, result)
-
-
 def _arrow_schema(columns: list[str]):
     import pyarrow as pa
 
     return pa.schema([(c, pa.string() if c in TEXT_COLUMNS else pa.int64() if c in INT_COLUMNS else pa.float64())
                       for c in columns])
-
-
-def figures_known(ground_truth: set[str]) -> dict[str, bool]:
-    """Which standard figures the pairs' ground truth (the rows' ``ground_truth``: pose, F, correspondences,
-    none) allows: pose AUC needs a pose, NSGD recall an F. Runs that predate the column: both."""
-    gts = ground_truth or {"pose"}
-    return {"pose": "pose" in gts, "nsgd": bool(gts - {"none"})}
-
-
-# Per pair and estimator, what the standard figures need (NaN where the estimate failed).
-FIGURE_KEYS = ("pose_err_deg", "nsgd", "sed_median", "sampson_median")
-UNDEFINED = "pose-undefined"  # a row's kind (row_kind) where too few evaluation matches leave its figures undefined
-WITH_POSE = "pairs with a pose"  # the second pose AUC: over the pairs whose pose is defined only
-UNDEFINED_COLUMN = "undefined (too few matches)"
-
-
-def row_failed(est: str, error: Any, pair_error: Any) -> bool:
-    """Whether an estimator's row is an error (no F): its own error or its pair's. The ground truth's row never
-    is: its F does not depend on the matches (a pair with too few matches, or not evaluated, leaves its residuals
-    undefined, :func:`row_kind`)."""
-    return est != GT_NAME and bool(error or pair_error)
-
-
-def row_kind(est: str, row: dict[str, Any], failed: bool) -> str:
-    """What one CSV row gives the standard figures: the pair's ground truth (pose, F, correspondences, none), or
-    UNDEFINED: an estimate whose pose could not be chosen for want of evaluation matches (``pose_undefined``; the
-    field's pose AUC counts it as an infinite error, the matcher gave too few matches), or the ground truth's own
-    row on a pair with fewer than MIN_POSE_POINTS evaluation matches (or not evaluated): its residuals have no
-    value there, which is no failure of the ground truth. ``row``: from results (floats) or metrics.csv (text)."""
-    from fviz.geometry.pose import MIN_POSE_POINTS
-
-    gt = row.get("ground_truth") or "pose"
-    if est == GT_NAME:
-        try:
-            n_eval = float(row.get("n_eval"))
-        except (TypeError, ValueError):
-            n_eval = 0.0
-        few = bool(row.get("error") or row.get("pair_error")) or not n_eval >= MIN_POSE_POINTS
-        return UNDEFINED if few and gt == "pose" else gt
-    undefined = str(row.get("pose_undefined")) in ("1", "1.0")
-    return UNDEFINED if not failed and undefined else gt
 
 
 class _Stats:
@@ -261,14 +230,6 @@ def _typed(row: dict[str, Any], columns: list[str]) -> dict[str, Any]:
     return out
 
 
-def _fmt(v: float) -> str:
-    return "n/a" if not math.isfinite(v) else f"{v:.4g}"
-
-
-def _display(est: str) -> str:
-    return "ground truth" if est == GT_NAME else est
-
-
 def summary_markdown(config: RunConfig, stats: _Stats) -> str:
     """Per-estimator statistics of the key metrics and the paper-style EPI table."""
     ests = list(stats.order) or config.series_names()
@@ -415,136 +376,6 @@ def sweep_markdown(config: RunConfig, stats: _Stats) -> list[str]:
     return lines
 
 
-EPI_CAVEAT = (
-    "EPI-ABS / EPI-SQR are algebraic residuals: their values depend on the normalization of F and on the set of "
-    "pairs and matches (per pixel of epipolar distance they vary by about 100x between pairs), so compare them only "
-    "within one column of one run, and rank by SED, pose error or NSGD. Under ETR (F / F33) the ground-truth row can "
-    "be the worst: where the true F33 is near zero (motion nearly parallel to the image plane; exactly zero on "
-    "rectified stereo, where ETR is undefined) dividing by it inflates every residual, while an estimate with a larger "
-    "F33 is scaled down."
-)
-BASELINE_NOTE = (
-    "Baselines: `ahead` is straight-ahead motion from the cameras alone; `mean-...` the mean ground-truth F of other "
-    "sequences; `oracle-mean` (marked *oracle*) the mean ground-truth F of the evaluated pairs themselves: it has seen "
-    "the test labels, so beating it or not says nothing about estimation skill."
-)
-
-
-def standard_figures(per_pair: dict[str, Iterable[float]], order: Iterable[str] | None = None,
-                     known: dict[str, bool] | None = None,
-                     pair_gt: dict[str, list[str]] | None = None,
-                     failures: dict[str, int] | None = None) -> dict[str, dict[str, Any]]:
-    """Per estimator, from its per-pair FIGURE_KEYS (flat, NaN = no value): pairs, errors (no F), fails (of
-    ``sed_median``, :mod:`fviz.verdicts`: past 2 px or no value, as compare counts them), nsgd_recall (share of
-    pairs with nsgd < NSGD_RECALL_THRESHOLD; failures miss), medians of the per-pair sed_median and
-    sampson_median over the pairs that succeeded, whether it is an oracle, and two pose AUC@5/10/20 of
-    pose_err_deg (SuperGlue's ``pose_auc``, which LightGlue and glue-factory use):
-
-    - ``pose_auc``, the field's figure: over **every** pair with a ground-truth pose (``pose_pairs``); no F, no
-      pose recovered, or a pose undefined for want of evaluation matches (``pose_undefined`` pairs: the matcher
-      gave too few) is an infinite error, as SuperGlue / glue-factory count a failed estimate;
-    - ``pose_auc_with_pose``: the same over the ``with_pose_pairs`` whose pose is defined only; not comparable
-      with published figures, nor across matchers on hard data (a matcher that gives few matches drops its
-      hard pairs).
-
-    The ground truth's own row never fails: its errors are 0, its pose AUC is over the pairs where it has a pose
-    value, and ``pose_undefined`` counts the pairs with too few evaluation matches (its residuals undefined there,
-    not fails). ``known``: {"pose", "nsgd"} -> whether the pairs' ground truth allows that figure; NaN (n/a)
-    where it does not. ``pair_gt``: per estimator, each pair's kind (:func:`row_kind`: pose, F,
-    correspondences, none, or UNDEFINED): a pair without the ground truth a figure needs never counts as a miss
-    (NSGD recall is over ``gt_pairs``). ``failures``: per estimator, the pairs it gave no F on, when a NaN may
-    also mean *undefined*: those are not failures."""
-    known = known or {"pose": True, "nsgd": True}
-    from fviz.estimators.registry import is_oracle
-    from fviz.geometry import AUC_THRESHOLDS_DEG, NSGD_RECALL_THRESHOLD, pose_auc
-
-    sed_rule = fail_rule("sed_median")
-    auc = lambda e: {f"{t:g}": a if known["pose"] else math.nan for t, a in zip(AUC_THRESHOLDS_DEG, pose_auc(e))}  # noqa: E731
-
-    out = {}
-    for est in order or per_pair:
-        v = np.asarray(per_pair.get(est, []), np.float64).reshape(-1, len(FIGURE_KEYS))
-        pose, nsgd_, sed, samp = v.T
-        is_gt = est == GT_NAME
-        errors = 0 if is_gt else int(np.isnan(sed).sum()) if failures is None else failures.get(est, 0)
-        kinds = (pair_gt or {}).get(est)
-        kinds = np.array(kinds if kinds is not None and len(kinds) == len(v) else ["pose"] * len(v), dtype=object)
-        undefined = kinds == UNDEFINED
-        has_pose = (kinds == "pose") | undefined
-        has_gt = kinds != "none"
-        defined = kinds == "pose"
-        if is_gt:  # the reference: its pose error is 0 wherever it has one, never a miss
-            has_pose &= np.isfinite(pose)
-            defined &= np.isfinite(pose)
-        nsgd_ = nsgd_[has_gt & ~(is_gt & np.isnan(nsgd_))]
-        with np.errstate(invalid="ignore"):
-            recall = float(np.mean(np.nan_to_num(nsgd_, nan=np.inf) < NSGD_RECALL_THRESHOLD)) if len(nsgd_) else math.nan
-        out[est] = {
-            "pairs": len(v), "errors": errors,
-            "fails": int(sum(sed_rule.fails(x) for x in sed if not (is_gt and math.isnan(x)))),
-            "pose_pairs": int(has_pose.sum()), "gt_pairs": int(has_gt.sum()),
-            "pose_undefined": int(undefined.sum()),
-            "pose_auc": auc(pose[has_pose]),
-            "with_pose_pairs": int(defined.sum()),
-            "pose_auc_with_pose": auc(pose[defined]),
-            "nsgd_recall": recall if known["nsgd"] else math.nan,
-            "sed_median": float(np.nanmedian(sed)) if np.isfinite(sed).any() else math.nan,
-            "sampson_median": float(np.nanmedian(samp)) if np.isfinite(samp).any() else math.nan,
-            "oracle": is_oracle(est),
-        }
-    return out
-
-
-def figures_markdown(figures: dict[str, dict[str, Any]]) -> list[str]:
-    """The standard figures as a Markdown table, with how they are computed. Where some pair's pose is undefined
-    (too few evaluation matches), two more columns say so apart: the AUC over the pairs with a pose (a second,
-    named figure) and the count of undefined pairs."""
-    from fviz.geometry import NSGD_RECALL_THRESHOLD
-
-    aucs = next(iter(figures.values()), {}).get("pose_auc", {})
-    apart = any(f.get("pose_undefined") for f in figures.values())
-    slash = "/".join(aucs)
-    lines = [
-        "| estimator | " + " | ".join(f"AUC@{t}°" for t in aucs)
-        + (f" | AUC@{slash}° ({WITH_POSE}) | {UNDEFINED_COLUMN}" if apart else "")
-        + f" | NSGD recall (<{NSGD_RECALL_THRESHOLD:g}) | median SED px | median Sampson px | {ERRORS} | {fails_column()} |",
-        "|---|" + "---|" * (len(aucs) + 5 + 2 * apart),
-    ]
-    for est, f in figures.items():
-        extra = (f" | {'/'.join(_fmt(a) for a in f['pose_auc_with_pose'].values())} | {f['pose_undefined']}/{f['pairs']}"
-                 if apart else "")
-        lines.append(f"| {_display(est)}{' (*oracle*)' if f['oracle'] else ''} | "
-                     + " | ".join(_fmt(a) for a in f["pose_auc"].values()) + extra
-                     + f" | {_fmt(f['nsgd_recall'])} | {_fmt(f['sed_median'])} | {_fmt(f['sampson_median'])} | "
-                     f"{f['errors']}/{f['pairs']} | {f['fails']}/{f['pairs']} |")
-    partial = [f"{_display(e)}: pose AUC over {f['pose_pairs']} and NSGD recall over {f['gt_pairs']} of {f['pairs']} pairs"
-               for e, f in figures.items()
-               if e != GT_NAME and (f.get("pose_pairs", f["pairs"]) < f["pairs"] or f.get("gt_pairs", f["pairs"]) < f["pairs"])]
-    if partial:
-        lines += ["", "Only the pairs with ground truth count in the figures (a pose for AUC, any ground truth for NSGD "
-                  "recall): " + "; ".join(partial[:1]) + (" (likewise the others)" if len(partial) > 1 else "") + "."]
-    if apart:
-        undefined = [f"{_display(e)} {f['pose_undefined']}" for e, f in figures.items() if f.get("pose_undefined") and e != GT_NAME]
-        lines += ["", f"{UNDEFINED_COLUMN[0].upper()}{UNDEFINED_COLUMN[1:]}: " + (", ".join(undefined) + " pairs. " if undefined else "")
-                  + f"An estimate's pose there cannot be chosen by cheirality (fewer than {MIN_POSE_POINTS} evaluation matches "
-                  "and no ground-truth points): the matcher gave too few, and the field's AUC counts it as an infinite error "
-                  f"(AUC@ columns); AUC@{slash}° ({WITH_POSE}) leaves those pairs out, a second figure not comparable with "
-                  "published ones. The ground truth never fails: on the pairs with too few matches (fewer than "
-                  f"{MIN_POSE_POINTS} evaluation matches, or too few for any estimator) its residuals are undefined, "
-                  "counted in that column, not as errors."]
-    lines += [
-        "",
-        "Pose AUC: area under the recall curve of max(rotation error, translation-direction error) up to each threshold, "
-        "over every pair with a ground-truth pose, as SuperGlue / LightGlue / glue-factory compute it ((R, t) from "
-        "E = K_b^T F K_a by cheirality on the evaluation matches; an error (no F), no pose recovered or a pose undefined "
-        "counts as an infinite error). NSGD recall: share of pairs whose FM-Bench normalized symmetric "
-        "geometric distance is below the threshold (an error is a miss). Medians: of the per-pair median over the "
-        "evaluation matches, over the pairs where the estimator gave an F. Fails: past the column's threshold or no value, "
-        "the pairs `fviz compare` counts as fails. " + BASELINE_NOTE,
-    ]
-    return lines
-
-
 def summary_document(config: RunConfig, stats: _Stats) -> dict[str, Any]:
     """summary.json: the standard figures per estimator, machine-readable (NaN written as null)."""
     ests = list(stats.order) or config.series_names()
@@ -572,31 +403,6 @@ def write_summary(path: Path, config: RunConfig, stats: _Stats) -> Path:
     return write_text(path, summary_markdown(config, stats))
 
 
-def _pair_text(rec: dict[str, Any], result: PairResult) -> str:
-    """The per-pair Markdown: inspect's summary, or the reason a pair failed as a whole."""
-    from fviz.record.writer import pair_markdown
-
-    if rec.get("result") is None:
-        return f"# {rec['key']}\n\n**pair error** (not evaluated): {rec['error']}\n"
-    text = pair_markdown(result)
-    return text + (f"\n\n**pair error**: {rec['error']}\n" if rec["error"] else "")
-
-
-def log_summary_pair(rec_stream, index: int, rec: dict[str, Any], result: PairResult, motion: bool = True) -> None:
-    """The light per-pair payload at ``pair`` = index: verdict, name, summary, metrics, errors, series (and with
-    ``motion`` the motion tracks)."""
-    import rerun as rr
-
-    from fviz.record import layout as L
-    from fviz.record.writer import log_pair_text, log_series
-    from fviz.verdicts import pair_verdict
-
-    rec_stream.set_time(L.TIMELINE, sequence=index)
-    rec_stream.log(L.VERDICT, rr.TextDocument(pair_verdict(rec).markdown(), media_type="text/markdown"))
-    log_pair_text(rec_stream, result, _pair_text(rec, result))
-    log_series(rec_stream, result, motion)
-
-
 def run_markdown(config: RunConfig, stats: _Stats) -> str:
     """eval.rrd's summary tab: the run's standard figures (what summary.md opens with), its failures by cause and,
     without ground truth, which estimators agree."""
@@ -607,113 +413,3 @@ def run_markdown(config: RunConfig, stats: _Stats) -> str:
                       "Tabs: **metrics** (errors on log10 axes) and **motion** (one series per F over the `pair` timeline), "
                       "**curves** (share "
                       "of the pairs below each threshold), and with `--full` the pairs' images. Every figure: summary.md."])
-
-
-def _curves_with_ground_truth(curves: dict, out_dir: Path, config: RunConfig, entries: list) -> dict:
-    """The cumulative curves over the pairs whose ground truth gives the metric (pose error: a pose; the
-    others: any), as the standard figures count them: a pair without ground truth is no miss."""
-    kinds: dict[str, list[str]] = {}
-    for _, _, rows in iter_rows(out_dir, config, entries):
-        for row in rows:
-            kinds.setdefault(row["estimator"], []).append(row.get("ground_truth") or "pose")
-    if all(k == "pose" for ks in kinds.values() for k in ks):
-        return curves
-    out = {}
-    for key, per in curves.items():
-        keep = (lambda k: k == "pose") if key == "pose_err_deg" else (lambda k: k != "none")
-        kept = {n: [v for v, k in zip(vals, kinds[n]) if keep(k)] if len(kinds.get(n, ())) == len(vals) else vals
-                for n, vals in per.items()}
-        out[key] = {n: v for n, v in kept.items() if v}  # no curve where no pair has the ground truth it needs
-    return out
-
-
-def write_recording(path: Path, out_dir: Path, config: RunConfig, summary: str = "", entries: list | None = None) -> Path:
-    """eval.rrd: every pair on the ``pair`` timeline with its metric series and motion tracks, the cumulative
-    error curves and the run's figures (``summary``); with ``--full`` (and a saved payload) also inspect's
-    images, keypoints and lines, images re-read from the source."""
-    import rerun as rr
-
-    from fviz.record import layout as L
-    from fviz.record.writer import (
-        CURVE_METRICS, RecordingWriter, log_curves, log_pair, log_static, ranges_of_values, series_values,
-    )
-
-    source = config.selection.source() if config.full else None
-    names = config.series_names()
-    sizes = None
-    if entries is None:
-        entries = list(ResultStore(out_dir, config).latest().values())
-    if config.full:
-        first = next((r["result"]["pair"] for r in read_records(entries) if r.get("result")), None)
-        if first is not None:
-            sizes = (tuple(first["size_a"]), tuple(first["size_b"]))
-    values = series_values(result for _, result, _ in iter_rows(out_dir, config, entries))  # the plots' ranges first
-    curves = {key: values.get(L.metric(key), {}) for key, *_ in CURVE_METRICS}  # none before the first pair
-    curves = _curves_with_ground_truth(curves, out_dir, config, entries)
-    ranges = ranges_of_values(values)
-    bp = L.blueprint(names, sizes, single_pair=False, ranges=ranges, curves=True, run_summary=True, verdict=sizes is not None)
-    with RecordingWriter(path, "fviz-eval", bp) as w:
-        log_static(w.rec, names, series=True, legend=sizes is not None, ranges=ranges)
-        log_curves(w.rec, curves, L.estimator_colors(names))
-        w.rec.log(L.RUN_SUMMARY, rr.TextDocument(summary or "", media_type="text/markdown"), static=True)
-        for rec, result, _ in iter_rows(out_dir, config, entries):
-            payload = payload_path(out_dir, rec["index"])
-            if source is not None and rec.get("result") is not None and payload_ok(payload):
-                pair = source.load(PairId(**{k: v for k, v in rec["ref"].items() if k != "name"}))
-                log_pair(w.rec, rec["index"], pair, load_payload(payload, result), single_pair=False)
-            else:
-                log_summary_pair(w.rec, rec["index"], rec, result)
-            w.pair_done()
-    return path
-
-
-# ------------------------------------------------------------------------------ merge
-
-
-def merge_runs(dirs: list[Path], out_dir: Path) -> RunOutcome:
-    """Merge the results of shards (or any runs of one configuration) into ``out_dir`` (locked meanwhile)."""
-    configs = []
-    for d in dirs:
-        c = read_config(d)
-        if c is None or not (Path(d) / RESULTS_FILE).is_file():
-            raise FvizError(f"merge: {d} holds no fviz run ({RUN_FILE} and {RESULTS_FILE} expected)")
-        holder = holder_of(Path(d))
-        if holder is not None:
-            raise FvizError(f"merge: {d} is still being written by {holder}: merge it when that run has finished")
-        configs.append(c)
-    first = configs[0]
-    for d, c in zip(dirs, configs):
-        if c.comparable() != first.comparable() or c.estimator_names() != first.estimator_names():
-            ours, theirs = _flatten(first.comparable()), _flatten(c.comparable())
-            diff = [f"{_FLAGS.get(k, k)} {_show(k, ours.get(k))} in {dirs[0]}, {_show(k, theirs.get(k))} in {d}"
-                    for k in sorted(ours.keys() | theirs.keys()) if ours.get(k) != theirs.get(k)]
-            if c.estimator_names() != first.estimator_names():
-                diff.append(f"--estimator {','.join(first.estimator_names())} in {dirs[0]}, "
-                            f"{','.join(c.estimator_names())} in {d}")
-            raise FvizError(f"merge: {d} was run with other settings than {dirs[0]}: {'; '.join(diff)}")
-    with locked(out_dir):
-        return _merge_into(dirs, Path(out_dir), replace(first, shard=None))
-
-
-def _merge_into(dirs: list[Path], out_dir: Path, config: RunConfig) -> RunOutcome:
-    import shutil
-
-    if (out_dir / RESULTS_FILE).exists():
-        raise FvizError(f"--out-dir {out_dir} already holds a run: choose an empty folder")
-    latest = {}  # key -> Entry; later dirs win
-    for d in dirs:
-        latest.update(ResultStore(d, config).latest())
-    store, failed = ResultStore(out_dir, config), 0
-    for rec in read_records(list(latest.values())):
-        store.append(rec)
-        failed += rec["error"] is not None
-        payload = payload_path(latest[rec["key"]].path.parent, rec["index"])
-        if payload.is_file():
-            with replacing(payload_path(out_dir, rec["index"])) as tmp:
-                shutil.copyfile(payload, tmp)
-    store.close()
-    write_config(out_dir, config)
-    outcome = RunOutcome(total=len(config.pairs()), reused=len(latest), computed=0, interrupted=False,
-                         out_dir=out_dir, failed=failed)
-    outcome.paths = write_reports(out_dir, config)
-    return outcome

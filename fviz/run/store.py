@@ -22,7 +22,6 @@ from fviz.evaluate import EstimatorResult, PairResult
 from fviz.run.config import PAYLOAD_DIR, RESULTS_FILE, RUN_FILE, RunConfig
 
 
-
 def payload_path(out_dir: Path, index: int) -> Path:
     return Path(out_dir) / PAYLOAD_DIR / f"{index:06d}.npz"
 
