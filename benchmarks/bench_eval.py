@@ -196,7 +196,7 @@ import fviz.estimators.features as features
 from fviz.cli.eval import RUN_PARAMS, RunArgs
 from fviz.run.config import prepare
 from fviz.run.evaluator import CACHE_FRESH, CACHE_NOTES, PairEvaluator
-from fviz.run.execute import FrameSchedule, schedule_window
+from fviz.run.schedule import FrameSchedule, schedule_window
 
 cv2.setNumThreads(1)
 detect, sift = features.detect, [0.0]

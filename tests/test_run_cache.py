@@ -183,7 +183,7 @@ def test_a_run_decodes_each_frame_once_and_names_its_pixels(kitti_root, monkeypa
     from fviz.cli.eval import RUN_PARAMS, RunArgs
     from fviz.run.config import prepare
     from fviz.run.evaluator import CACHE_FRESH, PairEvaluator
-    from fviz.run.execute import FrameSchedule, schedule_window
+    from fviz.run.schedule import FrameSchedule, schedule_window
     from fviz.run.hloc_cache import IMAGE_ATTR, CacheWriter, digest
 
     decoded = []
