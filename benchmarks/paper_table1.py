@@ -110,7 +110,7 @@ def spreads(results: list) -> dict[str, tuple[float, float]]:
     """Per F, how far it moves from pair to pair, as triage measures it (:mod:`fviz.triage`): the spread of its
     epipole's viewing ray and of its recovered rotation (deg; median angle to the median), 0 for a constant."""
     from fviz.geometry import epipoles
-    from fviz.triage import direction_spread_deg, rotation_spread_deg
+    from fviz.findings import direction_spread_deg, rotation_spread_deg
 
     rays, Rs = {}, {}
     for result, pair in results:

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from fviz.geometry import fundamental_from_motion
-from fviz.triage import IGNORES_FRACTION, estimator_findings, tracking_slope
+from fviz.findings import IGNORES_FRACTION, estimator_findings, tracking_slope
 
 K = np.array([[700.0, 0.0, 620.0], [0.0, 700.0, 190.0], [0.0, 0.0, 1.0]])
 
