@@ -121,7 +121,7 @@ def load_pair(
         kitti = {"--kitti-root": kitti_root, "--sequence": sequence, "--drive": drive, "--cams": cams,
                  "--synthetic": synthetic or None}
         if given := [flag for flag, v in kitti.items() if v is not None]:
-            from fviz.run.config import user_source_conflict
+            from fviz.data.selection import user_source_conflict
 
             raise FvizError(f"{given[0]}: {user_source_conflict(pairs, colmap)}")
     p = _user_pair(dict(image_a=image_a, image_b=image_b, K=K, K_a=K_a, K_b=K_b, T_ab=T_ab, F_gt=F_gt, pairs=pairs,

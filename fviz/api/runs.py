@@ -25,8 +25,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Iterator, Sequence
 
 from fviz.api.names import python_errors, word
+from fviz.data.selection import Selection
 from fviz.errors import FvizError
-from fviz.run.config import SUMMARY_JSON, RunConfig, Selection
+from fviz.run.config import SUMMARY_JSON, RunConfig
 from fviz.run.store import RunOutcome
 
 if TYPE_CHECKING:  # pragma: no cover
