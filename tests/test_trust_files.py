@@ -96,7 +96,7 @@ def only_error_line(proc) -> str:
 def test_a_second_training_into_a_held_out_dir_is_refused(tmp_path):
     out, go = tmp_path / "run", tmp_path / "go"
     holder = subprocess.Popen(
-        [sys.executable, "-c", "import sys, time, pathlib\nfrom fviz.run.store import locked\n"
+        [sys.executable, "-c", "import sys, time, pathlib\nfrom fviz.lock import locked\n"
          "with locked(sys.argv[1], 'train.out_dir'):\n    print('held', flush=True)\n"
          "    while not pathlib.Path(sys.argv[2]).exists(): time.sleep(0.02)\n", str(out), str(go)],
         stdout=subprocess.PIPE, text=True, cwd=PROJECT)

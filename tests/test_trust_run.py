@@ -260,7 +260,7 @@ def test_merge_of_a_shard_still_running_is_refused(run, tmp_path):
     """The shard's lock is held by a real process (fviz's own lock, taken in a child that waits)."""
     go = tmp_path / "go"
     holder = subprocess.Popen(
-        [sys.executable, "-c", "import sys, time, pathlib\nfrom fviz.run.store import locked\n"
+        [sys.executable, "-c", "import sys, time, pathlib\nfrom fviz.lock import locked\n"
          "with locked(sys.argv[1]):\n    print('held', flush=True)\n"
          "    while not pathlib.Path(sys.argv[2]).exists(): time.sleep(0.02)\n", str(run), str(go)],
         stdout=subprocess.PIPE, text=True, cwd=Path(__file__).resolve().parents[1])

@@ -398,7 +398,7 @@ def triage_run(
         A :class:`fviz.triage.TriageOutcome`: ``ranked`` (rank, key, value, tags per pair), ``findings`` per
         estimator, ``by``, ``markdown`` and ``recording`` (paths), ``eval`` (the evaluation's outcome).
     """
-    from fviz.run.store import locked
+    from fviz.lock import locked
     from fviz.triage import run_triage
 
     out_dir = _folder(run)

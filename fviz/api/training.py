@@ -58,8 +58,8 @@ def train(recipe: str | os.PathLike, overrides: Sequence[str] = (), *, resume: b
     from rich.console import Console
 
     from fviz.atomic import owning, target
+    from fviz.lock import locked
     from fviz.run.execute import remove_leftovers
-    from fviz.run.store import locked
     from fviz.train.loop import TrainingInterrupted, check_fresh, output_dir
     from fviz.train.loop import train as run_training
     from fviz.train.recipe import load_recipe

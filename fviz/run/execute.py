@@ -14,6 +14,7 @@ from typing import Any, Callable
 from fviz.atomic import WriteError
 from fviz.data.pair import PairId
 from fviz.errors import FvizError
+from fviz.lock import locked
 from fviz.run.config import MIN_PAIRS_PER_WORKER, RESULTS_FILE, RunConfig, prepare
 from fviz.run.evaluator import CACHE_FRESH, CACHE_NOTES, PairEvaluator, PairTask, new_record
 from fviz.run.hloc_cache import CacheWriter
@@ -23,7 +24,6 @@ from fviz.run.schedule import DeepBatches, FrameSchedule, schedule_window
 from fviz.run.store import (
     ResultStore,
     RunOutcome,
-    locked,
     merge_record,
     payload_path,
     read_config,

@@ -7,9 +7,10 @@ from pathlib import Path
 
 from fviz.atomic import replacing
 from fviz.errors import FvizError
+from fviz.lock import holder_of, locked
 from fviz.run.config import _FLAGS, RESULTS_FILE, RUN_FILE, RunConfig, _flatten, _show
 from fviz.run.reports import write_reports
-from fviz.run.store import ResultStore, RunOutcome, holder_of, locked, payload_path, read_config, read_records, write_config
+from fviz.run.store import ResultStore, RunOutcome, payload_path, read_config, read_records, write_config
 
 
 def merge_runs(dirs: list[Path], out_dir: Path) -> RunOutcome:
