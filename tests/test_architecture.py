@@ -18,7 +18,7 @@ MAX_LINES = 500
 OVERSIZED = {
     "fviz/record/writer.py": 1118, "fviz/data/synthetic.py": 1051, "fviz/train/loop.py": 1052, "fviz/record/layout.py": 716,
     "fviz/train/data.py": 606, "fviz/record/reader.py": 580,
-    "fviz/data/kitti.py": 572, "fviz/data/correspondences.py": 544,
+    "fviz/data/kitti.py": 572,
 }
 
 

@@ -86,7 +86,7 @@ def test_hloc_matches_give_opencvs_F_and_the_ground_truth_of_the_pairs_file(sift
 
 
 def test_reversed_hloc_pair_superglue_npz_and_text_are_the_same_matches(sift_matches, tmp_path):
-    from fviz.data.correspondences import open_matches
+    from fviz.data.match_files import open_matches
     from fviz.data.images import two_images
 
     kp, m0, scores = sift_matches

@@ -14,7 +14,9 @@ import pytest
 from cli_util import assert_one_line_error, run_fviz
 from sources_util import fountain
 
-from fviz.data.correspondences import HlocReader, SuperGlueReader, open_matches
+from fviz.data.correspondences import SuperGlueReader
+from fviz.data.hloc import HlocReader
+from fviz.data.match_files import open_matches
 from fviz.data.images import MAX_IMAGE_PIXELS, image_header, two_images
 from fviz.errors import FvizError
 

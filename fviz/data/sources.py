@@ -64,7 +64,7 @@ class WithCorrespondences:
     """A source whose pairs carry the user's matches and/or ground-truth correspondences."""
 
     def __init__(self, source, matches: str | Path | None, gt_matches: str | Path | None, n_pairs: int | None = None):
-        from fviz.data.correspondences import open_gt_matches, open_matches
+        from fviz.data.match_files import open_gt_matches, open_matches
 
         self.source = source
         self.matches = open_matches(matches) if matches else None

@@ -2,7 +2,7 @@
 ``triage -e X`` or ``eval --resume`` with a new estimator reuses them instead of detecting again, and a
 user can read them as hloc files (``--matches RUN/matches.h5``, or hloc's own tools)::
 
-    features.h5   one group per image (hloc's name: :func:`fviz.data.correspondences.hloc_name`):
+    features.h5   one group per image (hloc's name: :func:`fviz.data.hloc.hloc_name`):
                   keypoints (N, 2) float32 pixels, OpenCV's origin as hloc keeps them
                   (:data:`~fviz.data.correspondences.HLOC_PIXEL_SHIFT`), descriptors (D, N) (hloc's
                   transposed layout; float32 SIFT of unit length as hloc's extractors write them, uint8 ORB /
@@ -197,7 +197,7 @@ class RunCache:
 
         The pixels are digested only to check an entry found on disk; features detected in this run carry
         their digest already (``cache.fingerprint``), taken while they were decoded to detect."""
-        from fviz.data.correspondences import hloc_name, names_to_pair
+        from fviz.data.hloc import hloc_name, names_to_pair
         from fviz.estimators.features import match
 
         pid = pair.id
