@@ -9,13 +9,12 @@ import pytest
 
 from fviz.errors import FvizError
 from fviz.geometry import f_distance, symmetric_epipolar_distance
+from fviz.models.predict import flip_matrix
+from fviz.train.augment import Augment, augmented_pair
 from fviz.train.data import (
-    Augment,
     KittiItem,
     KittiPairs,
-    augmented_pair,
     filter_by_gt_agreement,
-    flip_matrix,
     gt_agreement_px,
     kitti_items,
     load_kitti_pair,
