@@ -1,5 +1,6 @@
-"""Typed reading of JSON written by fviz (run.json): every field checked against the dataclass it fills,
-so a hand-edited file is a one-line error naming the field, never a TypeError deep in a run."""
+"""The one typed-config validator: a value checked against a type annotation (:func:`convert`) and a dataclass's fields
+from a dict (:func:`fields_of`), for run.json and the training recipes (:mod:`fviz.train.recipe` adds its bounds and
+wording); so a hand-edited file is a one-line error naming the field, never a TypeError deep in a run."""
 
 from __future__ import annotations
 
@@ -20,7 +21,8 @@ def _name(tp) -> str:
         return "a list"
     if origin is dict:
         return "an object"
-    return {type(None): "null", bool: "true/false", int: "an integer", float: "a number", str: "a string"}.get(
+    return {type(None): "null", bool: "true/false", int: "an integer", float: "a number", str: "a string",
+            dict: "an object", list: "a list"}.get(
         tp, getattr(tp, "__name__", str(tp)))
 
 
@@ -73,6 +75,10 @@ def convert(value: Any, tp, where: str) -> Any:  # noqa: C901 (one branch per an
             raise _bad(value, tp, where)
         key_tp, val_tp = args or (Any, Any)
         return {convert(k, key_tp, f"{where} key"): convert(v, val_tp, f"{where}.{k}") for k, v in value.items()}
+    if tp in (dict, list):
+        if not isinstance(value, tp):
+            raise _bad(value, tp, where)
+        return value
     if dataclasses.is_dataclass(tp):
         return tp(**fields_of(value, tp, where))
     return value

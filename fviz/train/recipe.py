@@ -219,39 +219,33 @@ def _type_name(tp) -> str:
 
 
 def _coerce(value: Any, tp, meta: dict, where: str) -> Any:
-    """Check ``value`` against the annotation ``tp`` (+ metadata); return it (ints widened to float)."""
-    bad = FvizError(f"{where} must be {'a' if tp is not int else 'an'} {_type_name(tp)}, got {value!r} ({type(value).__name__})")
-    origin = typing.get_origin(tp)
-    if origin is list:
-        if not isinstance(value, list):
-            raise bad
-        (item_tp,) = typing.get_args(tp)
-        bounds = {k: v2 for k, v2 in meta.items() if k in ("min", "max", "choices")}
-        out = [_coerce(v, item_tp, bounds, f"{where}[{i}]") for i, v in enumerate(value)]
+    """Check ``value`` against the annotation ``tp`` (:func:`fviz.schema.convert`, the one validator; ints widened to
+    float) and the field's bounds (``choices``, ``min``, ``max``; a list's ``len``, each item's bounds); return it."""
+    from fviz.schema import convert
+
+    try:
+        value = convert(value, tp, where)
+    except FvizError:
+        if tp is float and isinstance(value, float) and not math.isfinite(value):
+            raise FvizError(f"{where} must be a finite number, got {value!r}") from None
+        if typing.get_origin(tp) is list and isinstance(value, list):  # an item's type: named at its index
+            (item_tp,) = typing.get_args(tp)
+            for i, v in enumerate(value):
+                _coerce(v, item_tp, {}, f"{where}[{i}]")
+        raise FvizError(f"{where} must be {'a' if tp is not int else 'an'} {_type_name(tp)}, got {value!r} "
+                        f"({type(value).__name__})") from None
+    if typing.get_origin(tp) is list:
+        bounds = {k: v for k, v in meta.items() if k in ("min", "max", "choices")}
+        for i, v in enumerate(value):
+            _bounded(v, bounds, f"{where}[{i}]")
         n = meta.get("len")
-        if n is not None and len(out) != n and not (meta.get("allow_empty") and not out):
-            raise FvizError(f"{where} must have {n} entries, got {len(out)}")
-        return out
-    if tp is bool:
-        if not isinstance(value, bool):
-            raise bad
+        if n is not None and len(value) != n and not (meta.get("allow_empty") and not value):
+            raise FvizError(f"{where} must have {n} entries, got {len(value)}")
         return value
-    if tp is int:
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise bad
-    elif tp is float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise bad
-        value = float(value)
-        if not math.isfinite(value):
-            raise FvizError(f"{where} must be a finite number, got {value!r}")
-    elif tp is str:
-        if not isinstance(value, str):
-            raise bad
-    elif tp is dict:
-        if not isinstance(value, dict):
-            raise bad
-        return value
+    return _bounded(value, meta, where)
+
+
+def _bounded(value: Any, meta: dict, where: str) -> Any:
     if "choices" in meta and value not in meta["choices"]:
         shown = ", ".join(repr(c) for c in meta["choices"])
         raise FvizError(f"{where} must be one of {shown}, got {value!r}")
