@@ -94,8 +94,9 @@ class _ForkServer:
 _server: _ForkServer | None = None
 
 
-def run_fviz(*args, cwd=None, timeout=120, env=None, file_size_limit=None):
-    """``fviz ARGS`` in a process of its own: ``env`` its whole environment (default this one's);
+def run_fviz(*args, cwd=None, timeout=600, env=None, file_size_limit=None):
+    """``fviz ARGS`` in a process of its own (room for a loaded machine: importing torch alone can take a minute):
+    ``env`` its whole environment (default this one's);
     ``file_size_limit``: bytes a file may grow to (past it a write fails with EFBIG, as on a full disk)."""
     global _server
     argv = [str(a) for a in args]
@@ -110,6 +111,17 @@ def run_fviz(*args, cwd=None, timeout=120, env=None, file_size_limit=None):
     if _server is None or _server.proc.poll() is not None:
         _server = _ForkServer()
     return _server.run(argv, cwd, timeout, env, file_size_limit)
+
+
+def invoke(*args, check: bool = True):
+    """``fviz ARGS`` in this process (Typer's runner): the result, its exit code asserted 0 with ``check``."""
+    from typer.testing import CliRunner
+
+    from fviz.cli import app
+
+    r = CliRunner().invoke(app, [str(a) for a in args], catch_exceptions=False)
+    assert not check or r.exit_code == 0, r.output
+    return r
 
 
 def assert_one_line_error(proc, code, *fragments):

@@ -5,21 +5,14 @@ import math
 import shutil
 
 import pytest
-from cli_util import assert_one_line_error, run_fviz
-from typer.testing import CliRunner
+from cli_util import assert_one_line_error, invoke, run_fviz
 
-from fviz.cli import app
 from fviz.compare import EXACT_MAX_N, TIE_REL, Side, compare, summary_rows, wilcoxon_signed_rank
 
 pytestmark = pytest.mark.kitti
 
 SMALL = ("--max-keypoints", "400", "--no-progress", "--workers", "1", "--features", "orb")
 
-
-def invoke(*args):
-    r = CliRunner().invoke(app, [str(a) for a in args], catch_exceptions=False)
-    assert r.exit_code == 0, r.output
-    return r
 
 
 def values(run, estimator, metric="sed_median"):

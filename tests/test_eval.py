@@ -10,11 +10,9 @@ import time
 
 import pyarrow.parquet as pq
 import pytest
-from cli_util import assert_one_line_error, read_csv, run_fviz
+from cli_util import assert_one_line_error, invoke, read_csv, run_fviz
 from rerun.chunk import RrdReader
-from typer.testing import CliRunner
 
-from fviz.cli import app
 from fviz.record import layout as L
 from fviz.record import reader as R
 
@@ -27,15 +25,12 @@ VOLATILE = ("seconds",)  # timings differ between runs
 
 
 def fviz(*args):
-    """Run the CLI in this process; return the result (exit code 0 expected by callers that check)."""
-    result = CliRunner().invoke(app, [str(a) for a in args], catch_exceptions=False)
-    return result
+    """Run the CLI in this process; return the result (callers check its exit code)."""
+    return invoke(*args, check=False)
 
 
 def eval_ok(*args):
-    r = fviz("eval", *args)
-    assert r.exit_code == 0, r.output
-    return r
+    return invoke("eval", *args)
 
 
 

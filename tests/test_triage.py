@@ -6,11 +6,9 @@ import math
 
 import numpy as np
 import pytest
-from cli_util import assert_one_line_error, read_csv, run_fviz
+from cli_util import assert_one_line_error, invoke, read_csv, run_fviz
 from rerun.chunk import RrdReader
-from typer.testing import CliRunner
 
-from fviz.cli import app
 from fviz.data.pair import PairId
 from fviz.geometry import describe_epipole, epipoles, f_distance
 from fviz.record import layout as L
@@ -20,11 +18,6 @@ pytestmark = pytest.mark.kitti
 
 SMALL = ("--max-keypoints", "400", "--no-progress", "--workers", "1")
 
-
-def invoke(*args):
-    r = CliRunner().invoke(app, [str(a) for a in args], catch_exceptions=False)
-    assert r.exit_code == 0, r.output
-    return r
 
 
 

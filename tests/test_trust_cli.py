@@ -7,12 +7,8 @@ import json
 import shutil
 
 import pytest
-from cli_util import assert_one_line_error, run_fviz as _run_fviz
+from cli_util import assert_one_line_error, run_fviz
 
-
-def run_fviz(*args, timeout=600, **kw):
-    """fviz in a subprocess, with room for a loaded machine (importing torch alone can take a minute)."""
-    return _run_fviz(*args, timeout=timeout, **kw)
 
 
 INSPECT = ("inspect", "pair", "--synthetic", "--seed", "0", "--max-keypoints", "300")

@@ -11,14 +11,10 @@ import sys
 from pathlib import Path
 
 import pytest
-from cli_util import TINY_MODEL_TOML, run_fviz as _run_fviz
+from cli_util import TINY_MODEL_TOML, run_fviz
 
 from fviz import atomic
 
-
-def run_fviz(*args, timeout=600, **kw):
-    """fviz in a subprocess, with room for a loaded machine (importing torch alone can take a minute)."""
-    return _run_fviz(*args, timeout=timeout, **kw)
 
 
 PROJECT = Path(__file__).resolve().parents[1]

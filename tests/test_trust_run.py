@@ -14,12 +14,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from cli_util import assert_one_line_error, read_csv, run_fviz as _run_fviz
+from cli_util import assert_one_line_error, read_csv, run_fviz
 
-
-def run_fviz(*args, timeout=600, **kw):
-    """fviz in a subprocess, with room for a loaded machine (importing torch alone can take a minute)."""
-    return _run_fviz(*args, timeout=timeout, **kw)
 
 
 FAST = ("--max-keypoints", "400", "--workers", "1", "--no-progress")

@@ -13,14 +13,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from cli_util import assert_one_line_error, read_csv, run_fviz as _run_fviz, synthetic_recipe
+from cli_util import assert_one_line_error, read_csv, run_fviz, synthetic_recipe
 
 FAST = ("--max-keypoints", "400", "--workers", "1", "--no-progress")
 VOLATILE = {"seconds"}
 
-
-def run_fviz(*args, timeout=600, **kw):
-    return _run_fviz(*args, timeout=timeout, **kw)
 
 
 def ok(*args, **kw):
