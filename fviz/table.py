@@ -308,7 +308,10 @@ def paper_frame_rows(run_dir: Path) -> tuple[dict[str, list[dict]], str]:
 def _frames_section(run_dir: Path, rectified: dict[str, list[str]], header: list[str]) -> tuple[list[str], list[str]]:
     """(table.md's section on the paper's frame, table_frames.csv's lines: empty where the calibration has no
     unrectified cameras, the section then says why)."""
-    frames, why = paper_frame_rows(run_dir)
+    try:
+        frames, why = paper_frame_rows(run_dir)
+    except (FvizError, OSError) as e:  # the run's data moved or changed: the run's own table still stands
+        frames, why = {}, f"the paper's frame not computed: {' '.join(str(e).split())}"
     md = ["", "## Table 1 in the paper's frame", ""]
     if not frames:
         return md + [why + "."], []
