@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from fviz.data.kitti import raw_cameras, unrectified_fundamental
+from fviz.errors import FvizError
 from fviz.estimators.registry import get_estimator
 from fviz.evaluate import evaluate_pair, rows_in_frame
 from fviz.geometry import (apply_homography, f_distance, normalize, skew, symmetric_epipolar_distance,
@@ -95,3 +96,52 @@ def test_the_papers_figures_are_transcribed_from_the_published_table():
     assert seen == len(PAPER_TABLE1) == 30
     assert paper_value("fbn", "Single-stream EPI + POS") == (0.67, 0.58)
     assert paper_value("abs", "RANSAC") == (0.33, 0.39) and paper_value("fbn", "MAGSAC++") is None
+
+
+def _line_distances(F, x_a, x_b):
+    """Independently: each match's distance to its epipolar line in image b (F x_a) and in image a (F^T x_b), px."""
+    out_b, out_a = [], []
+    for (ua, va), (ub, vb) in zip(x_a, x_b):
+        la = F @ np.array([ua, va, 1.0])  # the line of x_a in image b
+        lb = F.T @ np.array([ub, vb, 1.0])  # the line of x_b in image a
+        out_b.append(abs(la @ [ub, vb, 1.0]) / np.hypot(la[0], la[1]))
+        out_a.append(abs(lb @ [ua, va, 1.0]) / np.hypot(lb[0], lb[1]))
+    return np.array(out_a), np.array(out_b)
+
+
+def test_the_papers_filter_keeps_the_matches_whose_squared_distances_sum_below_2(raw_drive, cameras):
+    """table1.md: "the key-points whose symmetric epipolar distance under the ground-truth F is below 2 (so within
+    about one pixel of their epipolar line)": d_a^2 + d_b^2 < 2 px^2, not fviz's (d_a + d_b) / 2 < 2 px."""
+    from fviz.evaluate import near_ground_truth
+
+    pair = raw_drive.pair(3, "stereo", cams=(0, 1))
+    result = evaluate_pair(pair, [("magsac", get_estimator("magsac"))])
+    m = result.matches
+    H_a, H_b = cameras[0].H, cameras[1].H
+    # reading A: the unrectified frame, the F straight from K, R, T
+    F = unrectified_fundamental(cameras[0], cameras[1])
+    all_a, all_b = apply_homography(H_a, m.x_a), apply_homography(H_b, m.x_b)
+    d_a, d_b = _line_distances(F, all_a, all_b)
+    paper, fviz = d_a**2 + d_b**2 < 2.0, (d_a + d_b) / 2 < 2.0
+    assert np.array_equal(near_ground_truth(F, all_a, all_b, rule="paper"), paper)
+    assert np.array_equal(near_ground_truth(F, all_a, all_b, rule="fviz"), fviz)
+    assert 50 < paper.sum() < fviz.sum() and not (paper & ~fviz).any()  # a strict subset of fviz's
+    assert max(d_a[paper].max(), d_b[paper].max()) < np.sqrt(2)  # "within about one pixel" of both lines
+    rows = {r["estimator"]: r for r in rows_in_frame(result, H_a, H_b, rule="paper")}
+    assert rows["gt"]["n_eval"] == rows["magsac"]["n_eval"] == paper.sum()
+    hb, ha = np.c_[all_b[paper], np.ones(paper.sum())], np.c_[all_a[paper], np.ones(paper.sum())]
+    r = np.abs(np.einsum("ni,ij,nj->n", hb, F / F[2, 2], ha))
+    assert rows["gt"]["epi_abs_etr"] == pytest.approx(r.mean(), rel=1e-4)
+    assert rows["gt"]["epi_sqr_etr"] == pytest.approx((r**2).mean(), rel=1e-4)
+
+    # reading B: the same F on the rectified images' own pixels; the estimates as estimated there
+    d_a, d_b = _line_distances(F, m.x_a, m.x_b)
+    near = d_a**2 + d_b**2 < 2.0
+    rows = {r["estimator"]: r for r in rows_in_frame(result, H_a, H_b, rule="paper", reading="rectified-pixels")}
+    assert rows["gt"]["n_eval"] == near.sum() and 0 < near.sum() < paper.sum()  # F does not describe these pixels
+    hb, ha = np.c_[m.x_b[near], np.ones(near.sum())], np.c_[m.x_a[near], np.ones(near.sum())]
+    for name, G in (("gt", F), ("magsac", result.get("magsac").F)):
+        r = np.abs(np.einsum("ni,ij,nj->n", hb, G / np.linalg.norm(G), ha))
+        assert rows[name]["epi_abs_fbn"] == pytest.approx(r.mean(), rel=1e-4), name
+    with pytest.raises(FvizError, match="rule"):
+        near_ground_truth(F, all_a, all_b, rule="sum")

@@ -17,7 +17,10 @@ def table(run_dir: Optional[Path] = typer.Argument(None, metavar="RUN", help="An
     Rows: network variants (one per architecture and head; the norm a checkpoint was trained with picks its
     columns), 8-point, LMedS, RANSAC, other estimators, Ground-truth. Columns: EPI-ABS / EPI-SQR per norm.
     EPI values depend on the norm and on the pairs; under ETR the Ground-truth row can be the worst (F / F33
-    blows up where the true F33 is near 0). Below: pose AUC, NSGD recall, median SED / Sampson per estimator.
+    blows up where the true F33 is near 0). On a KITTI raw drive, also Table 1 in the paper's frame with the
+    paper's filter (reading A: the unrectified cameras; B: their F on the rectified pixels), as
+    benchmarks/paper_table1.py prints it, and table_frames.csv; elsewhere it says why not. Below: pose AUC, NSGD
+    recall, median SED / Sampson per estimator.
 
     Example: fviz eval --synthetic --seeds 0:500 -e 8point -e lmeds -e ransac -e deep:runs/a/model.pt ...
     --out-dir runs/t && fviz table runs/t

@@ -39,7 +39,8 @@ from fviz.geometry.pose import (
     yaw_deg,
 )
 from fviz.geometry.precision import PRECISION_KEYS, match_precision, normalized_epipolar_distance
-from fviz.geometry.residuals import algebraic, epipolar_residuals, sampson_distance, symmetric_epipolar_distance
+from fviz.geometry.residuals import (algebraic, epipolar_residuals, sampson_distance, squared_epipolar_distances,
+                                    symmetric_epipolar_distance)
 
 __all__ = [
     "AUC_THRESHOLDS_DEG", "NSGD_RECALL_THRESHOLD", "essential_from_fundamental", "nearest_rotation", "gt_inlier_ratio", "nsgd", "pose_auc",
@@ -50,5 +51,5 @@ __all__ = [
     "enforce_rank2", "epipoles", "f_distance", "fundamental_from_motion", "fundamental_from_projections",
     "apply_homography", "transfer_fundamental", "homogeneous", "is_valid", "lines_in_a", "lines_in_b", "normalize",
     "sampson_distance", "skew",
-    "symmetric_epipolar_distance", "PRECISION_KEYS", "match_precision", "normalized_epipolar_distance",
+    "symmetric_epipolar_distance", "squared_epipolar_distances", "PRECISION_KEYS", "match_precision", "normalized_epipolar_distance",
 ]
