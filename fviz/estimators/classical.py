@@ -10,8 +10,9 @@ What ``--threshold`` (px) means to each (measured: the returned masks equal thes
 ``usac-*`` are OpenCV's USAC presets as image-matching-webui offers them (``cv2.USAC_DEFAULT`` ...): the flag
 API fixes OpenCV's random state, so they are deterministic but ignore ``--seed``; ``usac-parallel`` runs
 several threads and may differ between runs. ``ransac`` and ``lmeds`` ignore ``--seed`` too (OpenCV's RANSAC
-makes its own generator at a fixed state; ``cv2.setRNGSeed`` does not reach it); only ``magsac`` takes it. ``usac-prosac`` samples the best matches first: fviz's
-matches come best first (ascending descriptor distance), the order PROSAC needs.
+makes its own generator at a fixed state; ``cv2.setRNGSeed`` does not reach it); only ``magsac`` takes it.
+``usac-prosac`` samples the best matches first: fviz's matches come best first (ascending descriptor distance),
+the order PROSAC needs.
 """
 
 from __future__ import annotations
