@@ -33,9 +33,9 @@ class ClickViewer:
         """One viewer event (a ``rerun.notebook`` event, or the JSON string the widget sends) -> the Click it
         made, or None."""
         if isinstance(event, str):
-            from rerun._event import _viewer_event_from_json_str
+            from fviz.rerun_compat import viewer_event_from_json
 
-            event = _viewer_event_from_json_str(event)
+            event = viewer_event_from_json(event)
         c = self.session.on_event(event)
         if c is not None:
             self.rec.flush()
@@ -80,8 +80,9 @@ def open(path: str | Path, width: int | str = "auto", height: int | str = 640) -
     """A recording fviz wrote (inspect, eval --full, triage) in the notebook viewer, clicks wired: the file's
     bytes go to the viewer, the clicks into the same recording (its application and recording id)."""
     from fviz.interactive import session_for
+    from fviz.rerun_compat import send_rrd
 
     session = session_for(path)
     viewer = _viewer(session.rec, width, height)
-    viewer._viewer.send_rrd(Path(path).read_bytes())  # the widget's own message for recording bytes
+    send_rrd(viewer, Path(path).read_bytes())
     return ClickViewer(viewer, session.rec, session)

@@ -154,20 +154,26 @@ def test_ground_truth_agreement_filter(kitti_root, tmp_path):
 
 
 def test_pose_figures_from_f_against_closed_forms(kitti_root):
-    """Rotation error and yaw from E = K_b^T F K_a: zero / exact for the ground truth of real temporal
-    pairs, the GT rotation angle for the straight-ahead constant (R = I)."""
+    """The held-out figures are the eval's (one meaning per key: rot_err_deg is fviz.evaluate's, the pose recovered
+    by cheirality), plus yaw from E = K_b^T F K_a: exact for the ground truth of real temporal pairs; the GT rotation
+    angle is the straight-ahead constant's (R = I) rotation error."""
     import math
 
     from fviz.data.kitti import open_dataset
-    from fviz.train.heldout import rotation_error_of_f, straight_ahead_f, yaw_deg, yaw_of_f
+    from fviz.evaluate import evaluate_pair
+    from fviz.train.heldout import pair_figures, straight_ahead_f, yaw_deg, yaw_of_f
 
     ds = open_dataset(kitti_root, sequence="00")
     for frame in (0, 20, 40):
         pair = ds.pair(frame, kind="temporal", step=1)
-        assert rotation_error_of_f(pair.F_gt, pair.K_a, pair.K_b, pair.R) < 1e-5
+        figs = pair_figures(pair, [("constant", straight_ahead_f)])
         assert abs(yaw_of_f(pair.F_gt, pair.K_a, pair.K_b) - yaw_deg(pair.R)) < 1e-5
+        assert figs["gt"].metrics["rot_err_deg"] == 0.0
+        assert abs(figs["gt"].metrics["yaw_deg"] - yaw_deg(pair.R)) < 1e-5
         angle = math.degrees(math.acos(min((np.trace(pair.R) - 1) / 2, 1.0)))
-        assert abs(rotation_error_of_f(straight_ahead_f(pair), pair.K_a, pair.K_b, pair.R) - angle) < 0.02  # acos: KITTI rounding
+        assert abs(figs["constant"].metrics["rot_err_deg"] - angle) < 0.02  # acos: KITTI rounding
+        evaluated = evaluate_pair(pair, [("constant", straight_ahead_f)]).get("constant").metrics
+        np.testing.assert_equal({k: figs["constant"].metrics[k] for k in evaluated}, evaluated)  # NaN == NaN
     c, s = math.cos(math.radians(2.0)), math.sin(math.radians(2.0))
     assert abs(yaw_deg(np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])) - 2.0) < 1e-12  # optical axis towards +x
 

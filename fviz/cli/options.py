@@ -93,7 +93,7 @@ def thresholds(names: tuple[str, ...], threshold: str) -> tuple[tuple[str, ...],
 Confidence = Annotated[float, typer.Option("--confidence", help="Confidence of robust estimators.", callback=fraction("--confidence"))]
 MaxIters = Annotated[int, typer.Option("--max-iters", help="Iteration cap of robust estimators.",
                                        callback=checked("--max-iters", lambda n: 1 <= n < 2**31, "must be 1 .. 2147483647"))]
-Seed = Annotated[int, typer.Option("--seed", help="Random seed (robust estimators; synthetic scene).")]
+Seed = Annotated[int, typer.Option("--seed", help="Random seed (magsac, poselib, colmap: OpenCV fixes the others'; synthetic scene).")]
 EstimatorTimeout = Annotated[float, typer.Option("--estimator-timeout", help="Seconds one estimator may take on one pair; past it, it fails that pair (and the run goes on).",
                                                 callback=positive("--estimator-timeout"))]
 Norm = Annotated[str, typer.Option("--norm", help="Normalization for EPI-ABS / EPI-SQR: fbn, abs or etr.")]

