@@ -228,8 +228,7 @@ def _ints(col) -> list[int]:
 
 def entity_paths(path: str | Path) -> list[str]:
     """Every entity path in the recording, sorted, layout spelling (``["/", "a/image", ...]``)."""
-    paths = _contents(open_rrd(path)).paths
-    return sorted({_layout(p) for p in paths if not p.startswith("/__")})
+    return sorted({_layout(p) for p in _contents(open_rrd(path)).paths if not p.startswith("/__")})
 
 
 def timelines(path: str | Path) -> list[str]:
@@ -483,10 +482,11 @@ def series_names(path: str | Path, entity: str) -> list[str]:
 
 def _blueprint_fields(reader) -> dict[str, dict[str, Any]]:
     """The stored blueprint: {entity (layout spelling): {component (without its archetype): last value}};
-    {} when the file stores none."""
-    stores = reader.blueprints()
+    {} when the file stores none; of several (a stream's pairs, fviz.log_result), the last sent: the one shown."""
+    from fviz.record.stream_pairs import sent_last
+
     fields: dict[str, dict[str, Any]] = {}
-    for ch in (reader.stream(store=stores[0]).to_chunks() if stores else []):
+    for ch in (reader.stream(store=store).to_chunks() if (store := sent_last(reader)) is not None else []):
         rb = ch.to_record_batch()
         slot = fields.setdefault(_layout(ch.entity_path), {})
         for name in rb.schema.names:
