@@ -199,3 +199,24 @@ def test_bad_index_is_refused(logged):
     _, pairs, results = logged
     with pytest.raises(FvizError, match="index"):
         fviz.log_result(rr.RecordingStream("x"), pairs[0], results[0], index=-1)
+
+
+def test_the_notebook_viewer_fills_the_cell_and_clicks_from_python(logged):
+    """fviz.notebook.show's widget is as wide as the cell (rerun-notebook's "auto": 100 % of the cell, 16:9), not
+    a fixed size; ClickViewer.click on a pixel of image b draws its lines in image a where OpenCV puts them (F^T x_b)."""
+    import fviz.notebook
+
+    _, pairs, results = logged
+    v = fviz.notebook.show(pairs[1], results[1])
+    widget = v.viewer._viewer  # the anywidget whose traits the frontend sizes the viewer by
+    assert (widget._width, widget._height) == ("auto", "auto")
+    x = np.array([200.0, 100.0])
+    c = v.click("b", *x)
+    assert c is not None and c.view == "b" and v.last is c
+    x = c.point  # snapped to a match end when one is within reach
+    for name, F in _fs(results, 1).items():
+        k = c.names.index(name)
+        line = cv2.computeCorrespondEpilines(np.float32(x).reshape(1, 1, 2), 2, F).reshape(3)
+        ends = np.c_[c.segments[k], np.ones(2)]
+        assert c.inside[k] and np.abs(ends @ line / np.hypot(*line[:2])).max() < 1e-2, name
+    assert v.click("a", -50.0, 10.0) is None  # off the image
