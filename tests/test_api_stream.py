@@ -220,3 +220,46 @@ def test_the_notebook_viewer_fills_the_cell_and_clicks_from_python(logged):
         ends = np.c_[c.segments[k], np.ones(2)]
         assert c.inside[k] and np.abs(ends @ line / np.hypot(*line[:2])).max() < 1e-2, name
     assert v.click("a", -50.0, 10.0) is None  # off the image
+
+
+@pytest.mark.browser
+@pytest.mark.slow
+def test_the_page_at_the_last_pair_shows_that_pair_alone(logged, tmp_path):
+    """``fviz open FILE --web`` in headless Chromium (one page load): the viewer opens on ``pair``; Right (Rerun's
+    "step time forward") moves the time cursor pair by pair to the last, and the viewer tells the page so (the time
+    it sends, which the page's clicks follow); the tab of pair 0's own F ("mine") then shows the last pair's small images and the ground
+    truth's white lines, with no line in mine's colour: nothing of pair 0 lingers (pixels)."""
+    import time
+
+    from test_web_viewer import Shot, budget, find_image, near, to_gray, viewer_rendered
+
+    path, pairs, _ = logged
+    last = N_PAIRS - 1
+    shot = Shot(path, tmp_path / "open.png", keep_open=True)
+    with shot:
+        b = shot.browser
+        events = lambda: [json.loads(e) for e in b.evaluate("window.fviz.events") or []]  # noqa: E731
+        assert [e for e in events() if e["type"] == "timeline_change"][-1]["timeline"] == L.TIMELINE  # as eval's
+        b.click((800, 990), hover=0.3)  # the time panel's strip: the viewer's canvas takes the keys
+        end = time.monotonic() + budget()
+        for i in range(1, last + 1):  # Right: Rerun's "step time forward", to the next pair
+            for kind in ("rawKeyDown", "keyUp"):
+                b.call("Input.dispatchKeyEvent", {"type": kind, "key": "ArrowRight", "code": "ArrowRight",
+                                                  "windowsVirtualKeyCode": 39, "nativeVirtualKeyCode": 39})
+            while not any(e.get("time") == float(i) for e in events()):
+                assert time.monotonic() < end, f"the viewer never reported pair {i}: {events()}"
+                time.sleep(0.5)
+        shot.open_tab("mine", tmp_path / "mine.png")
+        rgb = shot.rgb
+    assert viewer_rendered(rgb)
+    frame = to_gray(pairs[last].image_a)
+    score, scale, (x, y, w, h) = find_image(to_gray(rgb), frame)
+    print(f"pair {last}'s image a at ({x}, {y}) {w}x{h}, scale {scale:.2f}, score {score:.2f}")
+    assert score > 0.5, f"the last pair's image a is not on the screen (score {score:.2f}); {shot.context}"
+    _, bottom = L.images_extent(pairs[last].size_a, pairs[last].size_b)
+    images = rgb[y: y + int(bottom * scale), x: x + w]
+    colors = L.estimator_colors(["gt", "8point", "mine"])
+    white, mine = int(near(images, colors["gt"], 40).sum()), int(near(images, colors["mine"]).sum())
+    print(f"over the images: {white} white pixels (the ground truth's lines), {mine} in mine's colour")
+    assert white > 200, f"no ground truth lines: the tab is not drawn over the last pair; {shot.context}"
+    assert mine < 20, f"{mine} pixels in mine's colour: pair 0's lines linger over pair {last}; {shot.context}"
