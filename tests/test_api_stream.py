@@ -97,20 +97,31 @@ def _last_blueprint(path) -> dict[str, list]:
     return out
 
 
-def test_the_page_opens_on_the_pair_timeline_and_frames_every_pair(logged):
+def _image_views(bp) -> list[dict]:
+    """The bounds of the images' views: their margin alike left and above (not the comparison chart), wider than
+    the probe's zooms."""
+    return [b for row in bp["range"] for b in row if b["x_range"][0] == b["y_range"][0] and b["x_range"][1] > 200]
+
+
+def test_the_page_opens_on_the_pair_timeline_and_frames_every_pair(logged, tmp_path):
     """(a) the time panel on ``pair``, as eval's; (d) one blueprint per recording (Rerun 0.41): its image views frame
-    the largest pair, so that the big pairs are not cut by the last (small) pair's bounds."""
+    the largest pair, so that the big pairs are not cut by the last (small) pair's bounds. ``fviz open --tab``
+    rebuilds the same from the file."""
     path, pairs, _ = logged
     bp = _last_blueprint(path)
     assert bp["timeline"] == [[L.TIMELINE]]
     assert list(R.blueprint_tabs(path)) == ["overview", "8point", "mine", "probe"]
-    # the images' views: their margin alike left and above (not the comparison chart), wider than the probe's zooms
-    image_views = [b for row in bp["range"] for b in row if b["x_range"][0] == b["y_range"][0] and b["x_range"][1] > 200]
+    image_views = _image_views(bp)
     assert image_views
     for p in pairs:
         w, h = L.images_extent(p.size_a, p.size_b)
         for b in image_views:
             assert b["x_range"][1] >= w - 0.5 and b["y_range"][1] >= h - 0.5, (p.size_a, b)
+    app_id, rebuilt = R.recording_blueprint(path, active="mine")
+    rebuilt.save(app_id, str(tmp_path / "tab.rbl"))
+    again = _last_blueprint(tmp_path / "tab.rbl")
+    assert again["timeline"] == [[L.TIMELINE]] and "class_ids" not in again  # no override: every F has its keypoints
+    assert sorted(map(str, _image_views(again))) == sorted(map(str, image_views))
 
 
 def test_a_single_pair_still_opens_on_its_probe(logged, tmp_path):
