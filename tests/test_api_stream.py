@@ -154,6 +154,27 @@ def test_at_each_pair_only_its_own_entities_are_live(logged):
         assert np.allclose(np.asarray(xy, float)[: r.n_matches], r.matches.x_a, atol=1e-3)
 
 
+def test_pairs_logged_out_of_order_or_again_keep_to_their_own(logged, tmp_path):
+    """A pair logged at 7, then one with an F of its own ("mine") at 5: mine is cleared at 7 too; index 5 logged
+    again with a pair without mine: gone from 5 as well."""
+    path = tmp_path / "order.rrd"
+    _, pairs, results = logged
+    rec = rr.RecordingStream("order")
+    rec.save(str(path))
+    for i, k in ((7, 1), (5, 0)):
+        fviz.log_result(rec, pairs[k], results[k], index=i, lines=5, probe=2)
+    rec.flush()
+    rows = _rows(path)
+    assert L.est("a", "mine", "epilines") in _live(rows, 5) and L.est("a", "mine", "epilines") not in _live(rows, 7)
+    assert not {e: t for e, t in _live(rows, 7).items() if t != 7}
+    fviz.log_result(rec, pairs[2], results[2], index=5, lines=5, probe=2)
+    rec.flush()
+    rec.disconnect()
+    rows = _rows(path)
+    assert L.est("a", "mine", "epilines") not in _live(rows, 5)
+    assert not {e: t for e, t in _live(rows, 5).items() if t != 5}
+
+
 def _fs(results, i):
     return {e.name: e.F / np.linalg.norm(e.F) for e in results[i].estimators if not e.error and e.F is not None}
 

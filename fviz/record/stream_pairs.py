@@ -28,6 +28,7 @@ class _Logged:
     there, the image sizes; every F's name in order; the key of the blueprint last sent."""
 
     paths: dict[int, set[str]] = field(default_factory=dict)
+    every: set[str] = field(default_factory=set)
     cleared: dict[int, set[str]] = field(default_factory=dict)
     sizes: dict[int, tuple] = field(default_factory=dict)
     names: dict[str, None] = field(default_factory=dict)
@@ -62,7 +63,7 @@ def log_pair_into(rec, pair, result, lines: int, probe: int, probe_by: str | Non
     state.paths[index], state.cleared[index] = noting.paths, set()
     state.sizes[index] = (tuple(pair.size_a), tuple(pair.size_b))
     state.names.update(dict.fromkeys(r.name for r in result.estimators))
-    _clear_others(rec, state)
+    _clear_others(rec, state, index)
     rec.set_time(L.TIMELINE, sequence=index)
     if not blueprint:
         return
@@ -76,13 +77,15 @@ def log_pair_into(rec, pair, result, lines: int, probe: int, probe_by: str | Non
         state.sent = key
 
 
-def _clear_others(rec, state: _Logged) -> None:
-    """At every index, ``rr.Clear`` the paths that another pair logged and its own did not (once each)."""
+def _clear_others(rec, state: _Logged, index: int) -> None:
+    """``rr.Clear`` at ``index`` the paths other pairs logged and this one did not; when this pair brings paths no
+    other had, those at every other index too (each path once per index: a run costs O(pairs), not O(pairs^2))."""
     import rerun as rr
 
-    every = set().union(*state.paths.values())
-    for j, have in sorted(state.paths.items()):
-        gone = every - have - state.cleared[j]
+    new = state.paths[index] - state.every
+    state.every |= state.paths[index]
+    for j in sorted(state.paths) if new else [index]:
+        gone = state.every - state.paths[j] - state.cleared[j]
         if not gone:
             continue
         rec.set_time(L.PROBE_TIMELINE, sequence=0)
