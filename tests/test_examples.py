@@ -45,11 +45,15 @@ def test_quickstart_script(kitti_root, tmp_path):
     np.testing.assert_allclose(values, list(sed.values()), atol=5e-4)  # the printed figures are the recorded ones
 
 
-def _run_notebook(name: str, kitti_root, out) -> list:
-    """Execute ``examples/NAME`` headless (its kernel inherits FVIZ_OUT=out and the KITTI root) -> its code cells' outputs."""
+def _run_notebook(name: str, kitti_root, out, after: dict[str, str] | None = None) -> list:
+    """Execute ``examples/NAME`` headless (its kernel inherits FVIZ_OUT=out and the KITTI root) -> its code cells' outputs.
+    ``after``: {text in a code cell: code run right after that cell (what a user does between two cells: a click)}."""
     nbformat = pytest.importorskip("nbformat")
     nbclient = pytest.importorskip("nbclient")
     nb = nbformat.read(EXAMPLES / name, as_version=4)
+    for marker, code in (after or {}).items():
+        (at,) = [i for i, c in enumerate(nb.cells) if c.cell_type == "code" and marker in c.source]
+        nb.cells.insert(at + 1, nbformat.v4.new_code_cell(code))
     env_before = dict(os.environ)
     os.environ.update(_env(kitti_root, FVIZ_OUT=str(out)))
     try:
@@ -60,9 +64,50 @@ def _run_notebook(name: str, kitti_root, out) -> list:
     return [o for c in nb.cells if c.cell_type == "code" for o in c.outputs]
 
 
+# A click on a keypoint of image a as the widget sends it (a SelectionChangeEvent's JSON, tests/test_interactive.py
+# _selection), 1 px beside the match end nearest (300, 150), fed to the notebook's viewer between two cells; the click
+# (its point, match, F's and clipped lines) printed for the test.
+CLICK = """
+import json
+_j = int(np.argmin(np.linalg.norm(result.matches.x_a - [300.0, 150.0], axis=1)))
+_x = result.matches.x_a[_j] + 1.0
+_item = {"type": "entity", "entity_path": "/a/image", "view_name": "overview", "position": [float(_x[0]), float(_x[1]), None]}
+_c = viewer.handle(json.dumps({"type": "selection_change", "application_id": "fviz-notebook", "recording_id": "r",
+                               "items": [_item]}))
+print("CLICKED " + json.dumps({"match": _j, "x_a": result.matches.x_a[_j].tolist(), "view": _c.view, "got": _c.match,
+                               "point": _c.point.tolist(), "names": _c.names, "inside": _c.inside.tolist(),
+                               "segments": np.nan_to_num(_c.segments).tolist(),
+                               "F": {r.name: r.F.tolist() for r in result.estimators if r.F is not None}}))
+"""
+
+
+def _check_click(text: str) -> dict:
+    """The injected click drew, in image b, the clicked point's epipolar line under every F where OpenCV puts it
+    (computeCorrespondEpilines of the printed F's, independent of fviz); the next cell read it as ``viewer.last``."""
+    import json
+
+    import cv2
+
+    (line,) = re.findall(r"^CLICKED (.*)$", text, re.M)
+    c = json.loads(line)
+    assert c["view"] == "a" and c["got"] == c["match"] and np.allclose(c["point"], c["x_a"]), c
+    assert c["names"] == ["gt", "magsac", "mine"] and all(c["inside"]), c
+    for name, seg in zip(c["names"], c["segments"]):
+        epi = cv2.computeCorrespondEpilines(np.float32(c["point"]).reshape(1, 1, 2), 1, np.array(c["F"][name])).reshape(3)
+        ends = np.c_[np.asarray(seg, float), np.ones(2)]
+        assert np.abs(ends @ epi / np.hypot(*epi[:2])).max() < 1e-2, name
+    x, y = c["point"]
+    assert f"click in image a at ({x:.1f}, {y:.1f}), match {c['match']}" in text, text  # viewer.last, not the fallback
+    return c
+
+
 def test_notebook_runs_headless(kitti_root, tmp_path):
-    outputs = _run_notebook("quickstart.ipynb", kitti_root, tmp_path)
+    outputs = _run_notebook("quickstart.ipynb", kitti_root, tmp_path, after={"fviz.notebook.show(pair, result)": CLICK})
     text = "".join(o.get("text", "") for o in outputs if o.output_type == "stream")
+    c = _check_click(text)
+    robust = re.search(r"^re-estimated: mine_ransac median SED ([0-9.]+) px \(mine ([0-9.]+) px\)", text, re.M)
+    assert robust and float(robust[1]) < float(robust[2]), text  # the robust fit is the better one
+    assert re.search(rf"^\s+mine_ransac\s+residual [0-9.]+ px at match {c['match']}$", text, re.M), text  # same point
     sed = _sed_rows(text)
     assert list(sed) == ["gt", "magsac", "mine"] and sed["magsac"] < 0.5 < sed["mine"]
     assert f"saved {tmp_path / 'notebook_pair.rrd'}" in text and (tmp_path / "notebook_pair.rrd").is_file()

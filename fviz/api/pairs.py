@@ -334,18 +334,23 @@ def log_result(rec: rr.RecordingStream | None, pair: Pair, result: PairResult, *
         lines: epipolar lines drawn per F (a fixed subset of the evaluation matches).
         probe: steps of the ``probe`` timeline (the worst evaluation matches, one per step).
         probe_by: order the probe by this estimator's residual (default: the largest over the estimators).
-        index: the pair's position on the ``pair`` timeline (log several pairs into one recording).
-        blueprint: send fviz's blueprint (``rec.send_blueprint``): an overview tab, one tab per F, the probe.
+        index: the pair's position on the ``pair`` timeline. Log many pairs, of any sizes, into one recording with
+            ``index=0, 1, ...``: it then behaves as ``eval --full``'s (:mod:`fviz.record.stream_pairs`): at each
+            index only that pair's entities are shown (what another pair logged and this one did not is cleared),
+            its lines and keypoints its own, a click answered with its F's; the layout opens on ``pair`` and
+            frames the largest pair (Rerun keeps one layout per recording). The same index again replaces that pair.
+        blueprint: send fviz's blueprint (``rec.send_blueprint``): an overview tab, one tab per F, the probe;
+            again when a pair changes it (another size, another F).
     """
-    from fviz.record.writer import log_pair_recording, pair_blueprint
+    from fviz.record.stream_pairs import log_pair_into
 
     rec = stream(rec)
     if lines < 0 or probe < 0:
         raise FvizError(f"{'lines' if lines < 0 else 'probe'}: must be >= 0")
+    if isinstance(index, bool) or not isinstance(index, (int, np.integer)) or index < 0:
+        raise FvizError(f"index: expected an int >= 0, got {index!r}")
     check_result_of(pair, result)
-    log_pair_recording(rec, pair, result, lines, probe, probe_by, index)
-    if blueprint:
-        rec.send_blueprint(pair_blueprint(pair, result))
+    log_pair_into(rec, pair, result, lines, probe, probe_by, int(index), blueprint)
 
 
 def save_recording(path: str | Path, pair: Pair, result: PairResult, *, lines: int = 30, probe: int = 20,

@@ -83,7 +83,8 @@ its size on screen are scaled by :func:`screen_unit` (image px per screen px), s
 1241x376 KITTI frame and a 3072x2048 photo.
 
 Timelines: every pair sits at one index of ``pair`` (``inspect`` writes 0, ``eval`` one per pair; ``triage``
-adds ``rank``); ``inspect`` logs the pair at ``probe`` = 0 too, so each probe step shows over the pair.
+adds ``rank``; ``fviz.log_result`` the index given, :mod:`fviz.record.stream_pairs`); ``inspect`` logs the pair at
+``probe`` = 0 too, so each probe step shows over the pair (a stream of many pairs opens on ``pair``).
 
 The stored blueprint (:func:`blueprint`) opens on an **overview** tab (both images stacked with the ground
 truth's residuals and lines, every F's epipole, the comparison chart and the summary), then **one tab per
@@ -463,13 +464,20 @@ def below_images(size_a: tuple[int, int], size_b: tuple[int, int], drop_px: floa
 # it holds): the layout keeps to the views a reader needs, one 2D view per tab for both images.
 
 
+def view_extent(sizes) -> tuple[float, float, float]:
+    """(width, height with the footer, margin) that the images' views frame, in the root frame: of one pair's
+    ``(size_a, size_b)``, or the largest over many pairs' ``[(size_a, size_b), ...]`` (pairs of several sizes in one
+    recording, one blueprint: each pair fits, drawn from the top left)."""
+    many = [sizes] if np.ndim(sizes[0]) == 1 else list(sizes)
+    return (max(images_extent(*s)[0] for s in many), max(images_extent(*s)[1] + FOOTER_PX * screen_unit(s[0]) for s in many),
+            max(MARGIN_PX * screen_unit(s[0]) for s in many))
+
+
 def _images_view(sizes: tuple[tuple[int, int], tuple[int, int]], name: str, contents: list[str], overrides=None):
     """Image a above image b in one 2D view, with ``contents`` (entity path queries) over them."""
     import rerun.blueprint as rrb
 
-    w, h = images_extent(*sizes)
-    unit = screen_unit(sizes[0])
-    bottom, m = h + FOOTER_PX * unit, MARGIN_PX * unit
+    w, bottom, m = view_extent(sizes)
     clicks = [f"+ {click(v)}/**" for v in VIEWS]  # drawn live by the viewers that send clicks (fviz.interactive)
     return rrb.Spatial2DView(origin="/", contents=[f"+ {image('a')}", f"+ {image('b')}", *contents, *clicks], name=name,
                              visual_bounds=rrb.VisualBounds2D(x_range=[-0.5 - m, w - 0.5 + m],
@@ -579,28 +587,11 @@ def curves_tab(n_series: int):
 
 
 VERDICT_SHARE = 13  # the tabs' height below the verdict's (1)
-# compare.rrd (``fviz compare``): the metric of both sides per pair of the run, drawn in 2D (y down), and compare.md
-COMPARE_PAIRS = "compare/pairs"
-COMPARE_LEGEND = "compare/legend"
-COMPARE_TEXT = "compare/text"
-COMPARE_W, COMPARE_H = 1000.0, 360.0  # the plot's axes, in 2D units
 
 
-def compare_blueprint(title: str):
-    """compare.rrd's layout: the per-pair plot (its legend below it) beside compare.md."""
-    import rerun.blueprint as rrb
-
-    bounds = rrb.VisualBounds2D(x_range=[-90.0, COMPARE_W + 40.0], y_range=[-70.0, COMPARE_H + 150.0])
-    plot = rrb.Spatial2DView(origin="compare", contents=[f"+ {COMPARE_PAIRS}/**", f"+ {COMPARE_LEGEND}"], name=title,
-                             background=CHART_BACKGROUND, visual_bounds=bounds)
-    text = rrb.TextDocumentView(origin=COMPARE_TEXT, name="compare.md")
-    return rrb.Blueprint(rrb.Horizontal(plot, text, column_shares=[5, 2]), rrb.TimePanel(state="hidden"),
-                         collapse_panels=True)
-
-
-def blueprint(names: Sequence[str], sizes: tuple[tuple[int, int], tuple[int, int]] | None, single_pair: bool, head: bool = False,
+def blueprint(names: Sequence[str], sizes: Sequence | None, single_pair: bool, head: bool = False,
               active: str | None = None, classes: dict[str, np.ndarray] | None = None, ranges: dict | None = None,
-              curves: bool = False, run_summary: bool = False, notice: str = "", verdict: bool = False):
+              curves: bool = False, run_summary: bool = False, notice: str = "", verdict: bool = False, timeline: str | None = None):
     """The stored layout. ``names``: the F's (``gt`` among them or not); ``sizes``: (w, h) of image a and b,
     None when the recording holds no images (eval without --full); ``single_pair``: inspect (comparison
     bars and the probe) rather than a run (metric series and motion tracks over the pair timeline);
@@ -609,7 +600,8 @@ def blueprint(names: Sequence[str], sizes: tuple[tuple[int, int], tuple[int, int
     :func:`estimator_tab`; runs: ``ranges`` the plots' y ranges ({path: :func:`series_range`}), ``curves`` a
     tab of cumulative error curves, ``run_summary`` a summary tab with the run's figures; ``notice``: a
     warning put in the overview's title (a suspect ground truth); ``verdict``: the pair's verdict (``VERDICT``) above
-    the tabs (with ``head`` the banner opens with it instead)."""
+    the tabs (with ``head`` the banner opens with it instead); ``timeline``: the time panel's (default: ``probe`` for one
+    pair, ``rank`` with ``head``, else ``pair``). ``sizes`` may list many pairs' (:func:`view_extent`)."""
     import rerun.blueprint as rrb
 
     ests = [n for n in names if n != GT]
@@ -637,7 +629,8 @@ def blueprint(names: Sequence[str], sizes: tuple[tuple[int, int], tuple[int, int
     elif verdict:  # a title bar and two lines of text (a long verdict wraps in a narrow window)
         root = rrb.Vertical(rrb.TextDocumentView(origin=VERDICT, name="verdict"), root, row_shares=[1, VERDICT_SHARE])
     # paused, so that the viewer opens on the probe's first step (the worst match) and play walks from there
-    time_panel = rrb.TimePanel(state="collapsed", timeline=PROBE_TIMELINE if single_pair else RANK_TIMELINE if head else TIMELINE,
+    timeline = timeline or (PROBE_TIMELINE if single_pair else RANK_TIMELINE if head else TIMELINE)
+    time_panel = rrb.TimePanel(state="collapsed", timeline=timeline,
                                play_state="paused", fps=2.0)
     return rrb.Blueprint(root, time_panel, collapse_panels=True)
 

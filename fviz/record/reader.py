@@ -228,8 +228,7 @@ def _ints(col) -> list[int]:
 
 def entity_paths(path: str | Path) -> list[str]:
     """Every entity path in the recording, sorted, layout spelling (``["/", "a/image", ...]``)."""
-    paths = _contents(open_rrd(path)).paths
-    return sorted({_layout(p) for p in paths if not p.startswith("/__")})
+    return sorted({_layout(p) for p in _contents(open_rrd(path)).paths if not p.startswith("/__")})
 
 
 def timelines(path: str | Path) -> list[str]:
@@ -415,17 +414,18 @@ def recording_blueprint(path: str | Path, active: str | None = None):
     opening on tab ``active`` (an estimator's name, ``overview``, ``probe``, ``metrics``, ``motion``).
     FvizError naming the tabs there are when there is no such tab."""
     s = read_recording(path)
-    sizes = image_size(path, "a"), image_size(path, "b")
+    many = L.PROBE_TIMELINE in s.timelines and len(s.items) > 1  # pairs logged into one stream (record.stream_pairs)
+    sizes = sorted({(f.size_a, f.size_b) for f in click_pairs(path).values()}) if many else (image_size(path, "a"), image_size(path, "b"))
     single_pair = L.PROBE_TIMELINE in s.timelines or L.COMPARE in s.entity_paths
-    classes = match_classes(path) if single_pair and L.matches(L.GT) in s.entity_paths else None
+    classes = match_classes(path) if single_pair and not many and L.matches(L.GT) in s.entity_paths else None
     ranges = None if single_pair else series_ranges(path, s.entity_paths)
     notice = suspect_notice_of(path) if single_pair and L.SUMMARY in s.entity_paths else ""
     try:
         bp = L.blueprint(list(s.estimators), sizes if None not in sizes else None, single_pair=single_pair,
                          head=L.TRIAGE_TAGS in s.entity_paths, active=active, classes=classes, ranges=ranges,
                          curves=any(p.startswith(L.CURVES + "/") for p in s.entity_paths),
-                         run_summary=L.RUN_SUMMARY in s.entity_paths, notice=notice,
-                         verdict=L.VERDICT in s.entity_paths and None not in sizes)
+                         run_summary=L.RUN_SUMMARY in s.entity_paths, notice="" if many else notice,
+                         verdict=L.VERDICT in s.entity_paths and None not in sizes, timeline=L.TIMELINE if many else None)
     except ValueError as exc:
         raise FvizError(f"--tab {active}: {path} has {exc}") from None
     return s.app_id, bp
@@ -483,10 +483,11 @@ def series_names(path: str | Path, entity: str) -> list[str]:
 
 def _blueprint_fields(reader) -> dict[str, dict[str, Any]]:
     """The stored blueprint: {entity (layout spelling): {component (without its archetype): last value}};
-    {} when the file stores none."""
-    stores = reader.blueprints()
+    {} when the file stores none; of several (a stream's pairs, fviz.log_result), the last sent: the one shown."""
+    from fviz.record.stream_pairs import sent_last
+
     fields: dict[str, dict[str, Any]] = {}
-    for ch in (reader.stream(store=stores[0]).to_chunks() if stores else []):
+    for ch in (reader.stream(store=store).to_chunks() if (store := sent_last(reader)) is not None else []):
         rb = ch.to_record_batch()
         slot = fields.setdefault(_layout(ch.entity_path), {})
         for name in rb.schema.names:
@@ -563,13 +564,12 @@ def click_pairs(path: str | Path) -> dict[int, Any]:
     for t, v in fs.items():
         if len(v) < 4 or not v["estimators"]:
             continue
-        names = list(v["estimators"])
         ends = pts.get(t, {})
         owner = L.GT if L.GT in ends else next(iter(ends), None)
         xy = np.asarray(ends[owner], float).reshape(-1, 2) if owner else np.zeros((0, 2))
         size_a = tuple(int(s) for s in v["size_a"])
         n = len(xy) // 2
-        out[t] = PairFs(names, np.asarray(v["F"], float).reshape(-1, 3, 3), size_a, tuple(int(s) for s in v["size_b"]),
+        out[t] = PairFs(list(v["estimators"]), np.asarray(v["F"], float).reshape(-1, 3, 3), size_a, tuple(int(s) for s in v["size_b"]),
                         xy[:n], xy[n:] - L.offset_b(size_a))
     return out
 

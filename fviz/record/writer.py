@@ -441,12 +441,12 @@ def _names(result: PairResult) -> list[str]:
 
 def log_pair(rec, index: int, pair: Pair, result: PairResult, n_lines: int = 30, colors: Colors | None = None,
              probe_steps: int = 0, single_pair: bool = True, clear_reference: bool = False, motion: bool = True,
-             by: str | None = None) -> None:
+             by: str | None = None, many: bool = False) -> None:
     """Everything of one pair at ``pair`` = index (see :mod:`fviz.record.layout`): its verdict (judged on estimator
     ``by``, default every one), images, keypoints, lines, epipoles, the summary, the metrics table, and the
     comparison chart (``single_pair``) or the metric series and (``motion``) the motion tracks (runs). The reference
     lines when the notes say the ground truth is suspect; ``clear_reference`` (a run whose pairs carry that verdict:
-    triage) logs them empty otherwise."""
+    triage) logs them empty otherwise. ``many``: one pair of many in a stream (as a run's: every F's matches, marks cleared)."""
     import rerun as rr
 
     from fviz.verdicts import verdict_of
@@ -465,7 +465,7 @@ def log_pair(rec, index: int, pair: Pair, result: PairResult, n_lines: int = 30,
     m = result.matches
     sub = line_subset(result, n_lines)
     classes = match_classes(result)
-    shared = single_pair and L.GT in classes  # one pair: positions once, see layout.estimator_tab
+    shared = single_pair and not many and L.GT in classes  # one pair: positions once, see layout.estimator_tab
     marks: dict[str, list] = {v: [] for v in L.VIEWS}  # every F's epipole: (name, colour, where, label, arrows)
     for r in result.estimators:
         if r.error:
@@ -491,11 +491,11 @@ def log_pair(rec, index: int, pair: Pair, result: PairResult, n_lines: int = 30,
                 extra.append(epipole_name_strip(cross, label, sizes[v], unit))
             _log_marks(rec, L.est(v, r.name, "epilines"), [*seg[inside], *cross, *(x[0] for x in extra)],
                        [color] * (n + 2) + [x[1] for x in extra], [LINE_PX * unit] * n + [CROSS_PX * unit] * 2 + [x[2] for x in extra],
-                       [""] * n + ["" if shown else label] * 2 + [x[3] for x in extra], arrows, clear=not single_pair,
+                       [""] * n + ["" if shown else label] * 2 + [x[3] for x in extra], arrows, clear=many or not single_pair,
                        show_labels=shown)
             marks[v].append((r.name, color, cross.mean(axis=(0, 1)), label, arrows))
     for v in L.VIEWS:
-        _log_epipoles(rec, L.epipoles(v), marks[v], not single_pair, sizes[v],
+        _log_epipoles(rec, L.epipoles(v), marks[v], many or not single_pair, sizes[v],
                       scale_ends(pair.size_a, sizes[v]) if v == "b" else (), unit)
     if clear_reference or suspect_reference(result.notes) is not None:
         log_reference(rec, pair, result, colors, sub)
@@ -1097,14 +1097,14 @@ def pair_blueprint(pair: Pair, result: PairResult):
 
 
 def log_pair_recording(rec, pair: Pair, result: PairResult, n_lines: int = 30, probe_steps: int = PROBE_STEPS,
-                       probe_by: str | None = None, index: int = 0) -> int:
+                       probe_by: str | None = None, index: int = 0, many: bool = False) -> int:
     """Everything ``inspect pair`` records of one pair into ``rec`` at ``pair`` = index: legend, images,
-    lines, epipoles, summary, comparison, and the ``probe`` timeline. -> the probe steps logged."""
+    lines, epipoles, summary, comparison, and the ``probe`` timeline (``many``: see :func:`log_pair`). -> the probe steps."""
     colors = L.estimator_colors(_names(result))
     steps = len(probe_walk(pair, result, probe_by, probe_steps)[1])  # checks probe_by before logging
     log_static(rec, _names(result))
     rec.set_time(L.PROBE_TIMELINE, sequence=0)
-    log_pair(rec, index, pair, result, n_lines, colors, steps)
+    log_pair(rec, index, pair, result, n_lines, colors, steps, many=many)
     log_probe(rec, index, pair, result, probe_steps, probe_by, colors)
     return steps
 
