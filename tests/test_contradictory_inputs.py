@@ -103,7 +103,7 @@ def test_a_colmap_model_without_3d_points_notes_that_min_shared_does_not_apply(s
 
 def test_kusvod2_pts_files_are_found_in_folder_mode(frames, tmp_path):
     """Images BrusselsA / BrusselsB and their ground-truth correspondences Brussels_pts.txt (AdelaideRMF rows)."""
-    from fviz.data.correspondences import open_gt_matches
+    from fviz.data.match_files import open_gt_matches
     from fviz.data.images import two_images
 
     images, gt = tmp_path / "images", tmp_path / "gt"
