@@ -17,9 +17,9 @@ from typing import Any
 import numpy as np
 
 from fviz.evaluate import EVAL_THRESHOLD_PX, GT_NAME
-from fviz.evidence import (GT_OWN_SHARE, GT_OWN_TIGHT, MIN_EVIDENCE, STATIC_FRACTION, STATIC_PX,  # noqa: F401 (re-exported)
-                           _num, heldout_sed, input_evidence, input_mistake)
+from fviz.evidence import GT_OWN_SHARE, GT_OWN_TIGHT, MIN_EVIDENCE, STATIC_FRACTION, STATIC_PX, heldout_sed, input_evidence, input_mistake  # noqa: F401 (re-exported)
 from fviz.geometry.homography import HOMOGRAPHY_PX, MIN_FIT, homography_fraction  # noqa: F401 (re-exported)
+from fviz.stats import number
 
 ROTATION_PX = 2.0
 DEGENERATE_H_FRACTION = 0.9  # one homography explains this share of all matches: a plane or a pure rotation
@@ -236,9 +236,9 @@ def fits_matches(name: str) -> bool:
 def ill_conditioned(diag: dict[str, Any], ev: dict[str, Any]) -> str:
     """Why the epipolar geometry of the pair is poorly determined ("" when it is not): a small baseline,
     the infinite homography explaining most matches, or one plane holding most of the inliers ``ev``."""
-    rot, hom = _num(diag.get("rotation_fraction")), _num(ev.get("homography_fraction"))
-    if _num(diag.get("baseline_m")) < SMALL_BASELINE_M:
-        return f"small baseline (|t| = {_num(diag.get('baseline_m')):.3f} m)"
+    rot, hom = number(diag.get("rotation_fraction")), number(ev.get("homography_fraction"))
+    if number(diag.get("baseline_m")) < SMALL_BASELINE_M:
+        return f"small baseline (|t| = {number(diag.get('baseline_m')):.3f} m)"
     if rot >= ROTATION_FRACTION:
         return f"a pure rotation explains {rot:.0%} of the matches"
     if hom >= PLANAR_FRACTION:
@@ -248,7 +248,7 @@ def ill_conditioned(diag: dict[str, Any], ev: dict[str, Any]) -> str:
 
 def _margins(diag: dict[str, Any]) -> tuple[float, float]:
     """(residual margin, direction margin) px for this pair's ground truth (its stated accuracy; 0 when unknown)."""
-    acc = _num(diag.get("gt_accuracy_px"))
+    acc = number(diag.get("gt_accuracy_px"))
     acc = 0.0 if not np.isfinite(acc) else acc
     return (max(GT_SUSPECT_MARGIN_PX, GT_SUSPECT_ACCURACY_SHARE * acc),
             max(GT_SUSPECT_DIRECTION_MARGIN_PX, GT_SUSPECT_DIRECTION_ACCURACY_SHARE * acc))
@@ -261,11 +261,11 @@ def gt_own_consensus(diag: dict[str, Any], estimators: list[dict[str, Any]]) -> 
     the best estimate fits its own: two consistent sets, a matcher fooled by repeated texture). A translation a few
     degrees off on forward motion leaves many matches near F_gt's lines too, but loosely: 3-5 times the estimates'
     held-out residual. -> "312 of the 690 matches lie a median 0.3 px from F_gt's lines"."""
-    n, near = _num(diag.get("n_matches")), _num(((diag.get("inputs") or {}).get("n_gt")))
+    n, near = number(diag.get("n_matches")), number(((diag.get("inputs") or {}).get("n_gt")))
     gt = next((e for e in estimators if e["name"] == GT_NAME), None)
-    band = _num((gt or {}).get("metrics", {}).get("sed_median"))  # over the evaluation matches: those near F_gt
+    band = number((gt or {}).get("metrics", {}).get("sed_median"))  # over the evaluation matches: those near F_gt
     evidence = diag.get("estimators") or {}
-    fits = [(_num(e["metrics"].get("n_inliers")), _num(evidence.get(e["name"], {}).get("sed_median_heldout")))
+    fits = [(number(e["metrics"].get("n_inliers")), number(evidence.get(e["name"], {}).get("sed_median_heldout")))
             for e in estimators if is_robust(e["name"]) and not e.get("error") and e["name"] in evidence]
     own = max(fits)[1] if fits else float("nan")
     if (near >= max(MIN_EVIDENCE, GT_OWN_SHARE * n) and band <= GT_OWN_TIGHT * EVAL_THRESHOLD_PX
@@ -305,14 +305,14 @@ def gt_suspect(diag: dict[str, Any] | None, estimators: list[dict[str, Any]]) ->
         return None
     evidence = diag.get("estimators", {})
     rows = [e for e in estimators if not e.get("error") and is_robust(e["name"]) and e["name"] in evidence]
-    m = {e["name"]: {k: _num(e["metrics"].get(k)) for k in ("inlier_ratio", "n_inliers", "sed_median",
+    m = {e["name"]: {k: number(e["metrics"].get(k)) for k in ("inlier_ratio", "n_inliers", "sed_median",
                                                                 "epipole_err_deg", "rot_err_deg")} for e in rows}
 
     def residuals(n: str) -> tuple[float, float]:
         """(F_gt's median SED on the estimate's inliers, their held-out median SED); NaN for runs made before the
         held-out residuals were kept: not judged."""
         ev = evidence[n]
-        return _num(ev.get("gt_sed_median_inliers")), _num(ev.get("sed_median_heldout"))
+        return number(ev.get("gt_sed_median_inliers")), number(ev.get("sed_median_heldout"))
 
     consensus = [n for n in m if m[n]["inlier_ratio"] >= GT_SUSPECT_INLIER_RATIO and m[n]["n_inliers"] >= MIN_EVIDENCE
                  and np.isfinite(residuals(n)[1])]
@@ -324,12 +324,12 @@ def gt_suspect(diag: dict[str, Any] | None, estimators: list[dict[str, Any]]) ->
         return gt > GT_SUSPECT_RATIO * own and gt - own > margin  # NaN: False
 
     margin, direction_margin = _margins(diag)
-    acc = _num(diag.get("gt_accuracy_px"))
+    acc = number(diag.get("gt_accuracy_px"))
     stated = f"ground truth good to ~{acc:.2g} px" if np.isfinite(acc) else "ground truth of unstated accuracy"
     ref = max(consensus, key=lambda n: (m[n]["n_inliers"], -residuals(n)[1]))
     if worse(ref, margin):
         gt, own = residuals(ref)
-        agree = _num(evidence[ref].get("gt_agree"))
+        agree = number(evidence[ref].get("gt_agree"))
         k = int(m[ref]["n_inliers"])
         short = (f"{ref}'s {k} inliers ({m[ref]['inlier_ratio']:.0%}) sit {gt:.3g} px off F_gt's lines, {own:.2g} px "
                  "off F's refitted without them (out of sample)")
@@ -338,7 +338,7 @@ def gt_suspect(diag: dict[str, Any] | None, estimators: list[dict[str, Any]]) ->
                 f"out of sample (each from an 8-point F fitted to the other inliers), {agree:.0%} within "
                 f"{EVAL_THRESHOLD_PX:g} px (margin {margin:.2g} px: {stated})"}
     tight = [n for n in consensus if residuals(n)[1] < GT_SUSPECT_FIT_PX]
-    far = _num(diag.get("gt_epipole_distance"))
+    far = number(diag.get("gt_epipole_distance"))
     if len(tight) < 2 or ill_conditioned(diag, evidence[ref]) or far > GT_SUSPECT_EPIPOLE_NEAR:  # NaN (older runs): judged
         return None
     # the tight fits agree with each other: their directions lie closer together than half their offset from the
@@ -401,7 +401,7 @@ def pair_epipole_offset(rec: dict[str, Any]) -> tuple[dict[str, np.ndarray], flo
     res, diag = rec.get("result"), rec.get("diagnostics") or {}
     if rec.get("error") or not res or res.get("F_gt") is None or res["pair"].get("K_a") is None:
         return None
-    if not _num(diag.get("gt_epipole_distance")) <= GT_SUSPECT_EPIPOLE_NEAR or input_mistake(diag):
+    if not number(diag.get("gt_epipole_distance")) <= GT_SUSPECT_EPIPOLE_NEAR or input_mistake(diag):
         return None
     K, F_gt = np.array(res["pair"]["K_a"]), np.array(res["F_gt"])
     g = _direction_deg(K, epipoles(F_gt)[0])
@@ -409,7 +409,7 @@ def pair_epipole_offset(rec: dict[str, Any]) -> tuple[dict[str, np.ndarray], flo
 
     def tight(name: str) -> bool:
         e = ev.get(name, {})
-        return _num(e.get("n_inliers")) >= MIN_EVIDENCE and _num(e.get("sed_median_heldout")) < GT_SUSPECT_FIT_PX
+        return number(e.get("n_inliers")) >= MIN_EVIDENCE and number(e.get("sed_median_heldout")) < GT_SUSPECT_FIT_PX
 
     fits = {e["name"]: _direction_deg(K, epipoles(np.array(e["F"]))[0]) - g for e in res["estimators"]
             if is_robust(e["name"]) and e.get("F") is not None and tight(e["name"])}

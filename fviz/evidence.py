@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from fviz.evaluate import EVAL_THRESHOLD_PX
+from fviz.stats import number
 
 STATIC_PX = 0.5  # a match moving less than this is static (identical images: every match)
 STATIC_FRACTION = 0.9  # this share of the matches static: degenerate (fviz.verdicts, fviz.triage)
@@ -136,26 +137,26 @@ def input_mistake(diag: dict[str, Any] | None) -> dict[str, str] | None:
       of the matches lie within the threshold so: the matches' columns, or the images, in the wrong order;
     - ``scale``: the same at another scale of the coordinates (matches made on resized images)."""
     ev = (diag or {}).get("inputs") or {}
-    if not ev or _num((diag or {}).get("static_fraction")) >= STATIC_FRACTION:
+    if not ev or number((diag or {}).get("static_fraction")) >= STATIC_FRACTION:
         return None
-    n = int(_num((diag or {}).get("n_matches")))
-    pp = _num(ev.get("pp_offset"))
+    n = int(number((diag or {}).get("n_matches")))
+    pp = number(ev.get("pp_offset"))
     if pp > K_CENTRE_OFFSET:
         return {"detail": "K", "text": f"K's principal point lies {pp:.0%} of the image from its centre: a K for another "
                 "image size or crop? F_gt's lines and the pose errors rest on it"}
-    given = _num(ev.get("ncc_given"))
+    given = number(ev.get("ncc_given"))
 
     def looks(key: str) -> bool:
-        v = _num(ev.get(key))
+        v = number(ev.get(key))
         return v >= NCC_MIN and v >= np.nan_to_num(given, nan=-1.0) + NCC_GAIN
 
     def fits(d: str, k: str) -> bool:  # as tightly as a right ground truth fits its matches (GT_OWN_TIGHT)
-        return (INPUT_RATIO * _num(ev.get(d)) <= ev["d_gt"] and _num(ev.get(d)) <= GT_OWN_TIGHT * EVAL_THRESHOLD_PX
+        return (INPUT_RATIO * number(ev.get(d)) <= ev["d_gt"] and number(ev.get(d)) <= GT_OWN_TIGHT * EVAL_THRESHOLD_PX
                 and ev[k] >= max(MIN_EVIDENCE, INPUT_MIN_SHARE * n))
 
     def numbers(d: str, k: str, ncc: str) -> str:
-        look = f"; patches correlate {_num(ev.get(ncc)):.2f} so, {given:.2f} as given" if looks(ncc) else ""
-        return (f"F_gt's lines {_num(ev.get(d)):.2g} px from them so ({ev[k]}/{n} within {EVAL_THRESHOLD_PX:g} px), "
+        look = f"; patches correlate {number(ev.get(ncc)):.2f} so, {given:.2f} as given" if looks(ncc) else ""
+        return (f"F_gt's lines {number(ev.get(d)):.2g} px from them so ({ev[k]}/{n} within {EVAL_THRESHOLD_PX:g} px), "
                 f"{ev['d_gt']:.3g} px as given{look}")
 
     if looks("ncc_swapped") or fits("d_swapped", "n_swapped"):
@@ -169,7 +170,3 @@ def input_mistake(diag: dict[str, Any] | None) -> dict[str, str] | None:
         return {"detail": "scale", "text": f"the matches fit at {s:.3g}x their coordinates: "
                 f"{numbers('d_scaled', 'n_scaled', 'ncc_scaled')}{spread}: made on images of another resolution?"}
     return None
-
-
-def _num(v) -> float:
-    return float("nan") if v is None else float(v)

@@ -19,6 +19,7 @@ import numpy as np
 
 from fviz.estimators.registry import AHEAD
 from fviz.evaluate import GT_NAME
+from fviz.stats import number
 
 IGNORES_FRACTION = 0.1
 IGNORES_CONFIDENCE, IGNORES_BOOTSTRAP = 0.95, 200  # the tracking slope's interval (paired bootstrap over the pairs)
@@ -115,12 +116,12 @@ def estimator_findings(records, names: list[str]) -> list[Finding]:
         rows = {e["name"]: e for e in res["estimators"]}
         K_a, F_gt = np.array(res["pair"]["K_a"]), np.array(res["F_gt"])
         gt = rows.get(GT_NAME, {})
-        ahead_sed.append(_nan_if_none((rec.get("diagnostics") or {}).get("ahead_sed_median")))
+        ahead_sed.append(number((rec.get("diagnostics") or {}).get("ahead_sed_median")))
         for n in names:
             e, d = rows.get(n), per[n]
             ok = e is not None and not e["error"]
-            d["sed"].append(_nan_if_none(e["metrics"].get("sed_median")) if ok else math.inf)
-            d["pose"].append(_nan_if_none(e["metrics"].get("pose_err_deg")) if ok else math.inf)
+            d["sed"].append(number(e["metrics"].get("sed_median")) if ok else math.inf)
+            d["pose"].append(number(e["metrics"].get("pose_err_deg")) if ok else math.inf)
             if ok and e.get("R") is not None and gt.get("R") is not None:
                 d["ray"].append(_epipole_ray(np.array(e["F"]), K_a))
                 d["gt_ray"].append(_epipole_ray(F_gt, K_a))
@@ -155,7 +156,3 @@ def estimator_findings(records, names: list[str]) -> list[Finding]:
                             f"`{AHEAD}` (straight-ahead motion from the cameras alone)"))
         out.append(f)
     return out
-
-
-def _nan_if_none(v) -> float:
-    return float("nan") if v is None else float(v)

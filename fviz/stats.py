@@ -1,5 +1,5 @@
 """Statistics under every layer (numpy only): Wilcoxon's signed-rank test of paired differences, which compare,
-the held-out reports and the ground-truth bias (fviz.diagnose) share."""
+the held-out reports and the ground-truth bias (fviz.diagnose) share; :func:`number`, a JSON figure as a float."""
 
 from __future__ import annotations
 
@@ -65,3 +65,8 @@ def wilcoxon_signed_rank(d) -> Wilcoxon:
     sd = math.sqrt(n * (n + 1) * (2 * n + 1) / 24 - float((tied**3 - tied).sum()) / 48)
     z = (abs(w_plus - mean) - 0.5) / sd if sd > 0 else 0.0
     return Wilcoxon(n, w_plus, w_minus, float(min(1.0, math.erfc(max(z, 0.0) / math.sqrt(2)))), "normal")
+
+
+def number(v) -> float:
+    """A JSON number as a float, NaN for null (None): how fviz reads the figures it wrote."""
+    return float("nan") if v is None else float(v)

@@ -81,18 +81,45 @@ from typing import Any
 import numpy as np
 
 from fviz.atomic import write_text
-from fviz.verdicts import (DEGENERATE_FRACTION, ERROR, FAIL_RULES, HIGHER_IS_BETTER, LOW_INLIER_RATIO,  # noqa: F401 (re-exported)
-                           MATCHER_MIN_CORRECT, MATCHER_MIN_PRECISION, blame, blamed, fail_phrase, failure, pair_verdict)
-from fviz.diagnose import (GT_SUSPECT_DIRECTION_DEG, GT_SUSPECT_DIRECTION_MARGIN_PX, GT_SUSPECT_EPIPOLE_NEAR,
-                            GT_SUSPECT_FIT_PX, GT_SUSPECT_INLIER_RATIO, GT_SUSPECT_MARGIN_PX, GT_SUSPECT_RATIO,
-                            GT_SUSPECT_ROTATION_DEG, HOMOGRAPHY_PX, PLANAR_FRACTION, ROTATION_FRACTION, ROTATION_PX,
-                            MIN_EVIDENCE, SMALL_BASELINE_M, STATIC_PX, gt_suspect, input_mistake)
+from fviz.diagnose import (
+    GT_SUSPECT_DIRECTION_DEG,
+    GT_SUSPECT_DIRECTION_MARGIN_PX,
+    GT_SUSPECT_EPIPOLE_NEAR,
+    GT_SUSPECT_FIT_PX,
+    GT_SUSPECT_INLIER_RATIO,
+    GT_SUSPECT_MARGIN_PX,
+    GT_SUSPECT_RATIO,
+    GT_SUSPECT_ROTATION_DEG,
+    HOMOGRAPHY_PX,
+    MIN_EVIDENCE,
+    PLANAR_FRACTION,
+    ROTATION_FRACTION,
+    ROTATION_PX,
+    SMALL_BASELINE_M,
+    STATIC_PX,
+    gt_suspect,
+    input_mistake,
+)
 from fviz.errors import FvizError
 from fviz.estimators.registry import AHEAD, is_oracle, is_run_baseline
 from fviz.evaluate import EVAL_THRESHOLD_PX
-from fviz.findings import (IGNORES_FRACTION, IGNORES_MIN_PAIRS, MIN_GT_SPREAD_DEG, Finding,  # noqa: F401 (re-exported)
-                           _nan_if_none, estimator_findings)
+from fviz.findings import IGNORES_FRACTION, IGNORES_MIN_PAIRS, MIN_GT_SPREAD_DEG, Finding, estimator_findings  # noqa: F401 (re-exported)
 from fviz.record import layout as L
+from fviz.stats import number
+from fviz.verdicts import (  # noqa: F401 (re-exported)
+    DEGENERATE_FRACTION,
+    ERROR,
+    FAIL_RULES,
+    HIGHER_IS_BETTER,
+    LOW_INLIER_RATIO,
+    MATCHER_MIN_CORRECT,
+    MATCHER_MIN_PRECISION,
+    blame,
+    blamed,
+    fail_phrase,
+    failure,
+    pair_verdict,
+)
 
 FEW_MATCHES = 50
 FAIL_POSE_DEG = FAIL_RULES["pose_err_deg"].threshold  # one vocabulary of "fails" (fviz.verdicts)
@@ -128,7 +155,7 @@ def tag_pair(rec: dict[str, Any], by: str) -> list[tuple[str, str]]:
     if n < FEW_MATCHES:
         out.append(("few-matches", f"{n} matches < {FEW_MATCHES}"))
     metrics = next((e["metrics"] for e in res["estimators"] if e["name"] == by), {})
-    ratio, ev = _nan_if_none(metrics.get("inlier_ratio")), diag["estimators"].get(by, {})
+    ratio, ev = number(metrics.get("inlier_ratio")), diag["estimators"].get(by, {})
     if ratio < LOW_INLIER_RATIO:
         out.append(("low-inliers", f"{by} inlier ratio {ratio:.2f} < {LOW_INLIER_RATIO}"))
     mistake = input_mistake(diag)
@@ -137,13 +164,13 @@ def tag_pair(rec: dict[str, Any], by: str) -> list[tuple[str, str]]:
     suspect = gt_suspect(diag, res.get("estimators", []))
     if suspect:
         out.append(("gt-suspect", f"{suspect['why']}; reference: {suspect['reference']}"))
-    hom = _nan_if_none(ev.get("homography_fraction"))
+    hom = number(ev.get("homography_fraction"))
     if hom >= PLANAR_FRACTION:
         out.append(("planar", f"a homography explains {hom:.0%} of {by}'s inliers (>= {PLANAR_FRACTION:.0%})"))
-    base, rot = diag["baseline_m"], _nan_if_none(diag["rotation_fraction"])
+    base, rot = diag["baseline_m"], number(diag["rotation_fraction"])
     if base < SMALL_BASELINE_M or rot >= ROTATION_FRACTION:
         out.append(("small-baseline", f"|t| = {base:.3f} m, K_b R K_a^-1 explains {rot:.0%} of the matches"))
-    static = _nan_if_none(diag.get("static_fraction"))
+    static = number(diag.get("static_fraction"))
     if static >= DEGENERATE_FRACTION:
         out.append(("degenerate", f"{static:.0%} of the matches move < {STATIC_PX:g} px (identical images?): any F "
                     "through the points fits, residuals and inlier counts mean nothing"))
@@ -169,7 +196,7 @@ def two_view_tags(rec: dict[str, Any], by: str) -> list[tuple[str, str]]:
     label = diag.get("two_view", "")
     if label in COLMAP_TAGGED:
         out.append((f"colmap-{label.replace('_', '-')}", f"COLMAP's two-view geometry labels the matches {label.upper()}"))
-    f = [_nan_if_none(v) for v in (diag.get("estimators", {}).get(by, {}).get("focals") or [])]
+    f = [number(v) for v in (diag.get("estimators", {}).get(by, {}).get("focals") or [])]
     K = [np.array((rec.get("result") or {}).get("pair", {}).get(k, np.full((3, 3), np.nan))) for k in ("K_a", "K_b")]
     if diag.get("focal_observable") and len(f) == 2:
         ratio = [fi / k[0, 0] for fi, k in zip(f, K)]
@@ -201,7 +228,7 @@ def metric_value(rec: dict[str, Any], by: str, metric: str) -> float:
     if rec["error"] or not rec.get("result"):
         return float("nan")
     e = next((e for e in rec["result"]["estimators"] if e["name"] == by), None)
-    return float("nan") if e is None or e["error"] else _nan_if_none(e["metrics"].get(metric))
+    return float("nan") if e is None or e["error"] else number(e["metrics"].get(metric))
 
 
 def rank_pairs(records, by: str, metric: str) -> list[Ranked]:
@@ -238,8 +265,8 @@ def check_choice(config, records_sample: dict[str, Any] | None, by: str, metric:
 
 def inspect_command(config, source, ref: dict[str, Any]) -> str:
     """The ``fviz inspect pair`` command that reopens a pair with the run's options."""
-    from fviz.estimators.options import EstimatorOptions
     from fviz.data.pair import PairId
+    from fviz.estimators.options import EstimatorOptions
     pid = PairId(**{k: v for k, v in ref.items() if k != "name"})
     args = ["fviz", "inspect", "pair", *source.inspect_args(pid)]
     for name in config.options.names:

@@ -18,9 +18,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fviz.evidence import STATIC_FRACTION
 from fviz.evaluate import EVAL_THRESHOLD_PX, GT_NAME
+from fviz.evidence import STATIC_FRACTION
 from fviz.geometry import NSGD_RECALL_THRESHOLD
+from fviz.stats import number
 
 
 @dataclass(frozen=True)
@@ -118,8 +119,6 @@ class Verdict:
         return f"**{self.kind}**: {self.text}"
 
 
-def _num(v) -> float:
-    return float("nan") if v is None else float(v)
 
 
 def failure(row: dict) -> str:
@@ -131,7 +130,7 @@ def failure(row: dict) -> str:
     if row.get("error"):
         return f"gave no F: {str(row['error']).splitlines()[0][:80]}"
     m = row.get("metrics") or {}
-    pose, sed, epipole = _num(m.get("pose_err_deg")), _num(m.get("sed_median")), _num(m.get("epipole_err_deg"))
+    pose, sed, epipole = number(m.get("pose_err_deg")), number(m.get("sed_median")), number(m.get("epipole_err_deg"))
     why = []
     if math.isfinite(pose) and FAIL_RULES["pose_err_deg"].fails(pose):
         why.append(f"pose error {pose:.3g} deg")
@@ -148,7 +147,7 @@ def failure(row: dict) -> str:
 def blame(precision: dict, n_matches: int) -> tuple[str, str]:
     """Whose fault a failing estimate is, from the matches' precision (``match_precision``, before any estimator):
     (MATCHER or ESTIMATOR, the number that decides: "12% of the 300 matches lie within 2 px of F_gt")."""
-    p1, p2 = _num(precision.get("px_prec@1")), _num(precision.get("px_prec@2"))
+    p1, p2 = number(precision.get("px_prec@1")), number(precision.get("px_prec@2"))
     correct = p1 * n_matches
     share = f"{p2:.0%} of the {n_matches} matches lie within 2 px of F_gt"
     if not p2 >= MATCHER_MIN_PRECISION:
@@ -226,8 +225,8 @@ def pair_verdict(rec: dict, by: str | None = None) -> Verdict:
             return Verdict(FAILS, f"{who}; whose fault is unknown (no pose: no match precision){also}{beside}")
         kind, numbers = blame(res["match_precision"], n)
         return Verdict(kind, blamed(who, kind, numbers) + also + beside)
-    best = min(judged, key=lambda e: _num(e["metrics"].get("sed_median")), default=None)
-    sed = _num(best["metrics"].get("sed_median")) if best else float("nan")
+    best = min(judged, key=lambda e: number(e["metrics"].get("sed_median")), default=None)
+    sed = number(best["metrics"].get("sed_median")) if best else float("nan")
     return Verdict(NO_FAILURE, f"{', '.join(e['name'] for e in judged) or 'no estimator'} within median SED "
                    f"{FAIL_RULES['sed_median'].threshold:g} px, pose and epipole error {POSE_FAIL_DEG:g} deg"
                    + (f" (best: {best['name']}, median SED {sed:.3g} px)" if best else "") + beside)
@@ -244,7 +243,7 @@ def _too_few(res: dict, rows: list[dict], minimum: int) -> str:
         return f"{n} matches"
     if res.get("F_gt") is None or res.get("n_eval", 0) >= minimum:
         return ""
-    best = max((_num(e["metrics"].get("n_inliers")) for e in rows if is_robust(e["name"]) and not e.get("error")),
+    best = max((number(e["metrics"].get("n_inliers")) for e in rows if is_robust(e["name"]) and not e.get("error")),
                default=float("nan"))
     if not best >= minimum:
         inliers = f"{best:.0f} inliers" if math.isfinite(best) else "no robust estimator's inliers"
@@ -258,14 +257,14 @@ def _degenerate(diag: dict, n: int, static_px: float, failing: bool) -> Verdict 
     rotation explains them too)."""
     from fviz.diagnose import DEGENERATE_H_FRACTION, ROTATION_FRACTION
 
-    static = _num(diag.get("static_fraction"))
+    static = number(diag.get("static_fraction"))
     if static >= DEGENERATE_FRACTION:
         return Verdict(DEGENERATE, f"{static:.0%} of the {n} matches move < {static_px:g} px: any F through the points "
                        "fits them, residuals and inliers mean nothing", "static")
-    h = _num(diag.get("homography_fraction"))
+    h = number(diag.get("homography_fraction"))
     if not (failing and h >= DEGENERATE_H_FRACTION):
         return None
-    rotation = _num(diag.get("rotation_fraction")) >= ROTATION_FRACTION
+    rotation = number(diag.get("rotation_fraction")) >= ROTATION_FRACTION
     what = "a pure rotation" if rotation else "a plane (or a rotation)"
     return Verdict(DEGENERATE, f"one homography explains {h:.0%} of the {n} matches, {what}: they do not determine F, "
                    "so an estimate may fail without the matcher, the estimator or the ground truth being wrong",
@@ -279,7 +278,7 @@ def _beside_constant(diag: dict, rows: list[dict]) -> str:
     "" without a network's estimate or cameras."""
     from fviz.estimators.baselines import deep_versus_ahead
 
-    ahead = _num(diag.get("ahead_sed_median"))
+    ahead = number(diag.get("ahead_sed_median"))
     if not any(r["name"] == "ahead" for r in rows) and math.isfinite(ahead):
         rows = [*rows, {"name": "ahead", "error": None, "metrics": {"sed_median": ahead}}]
     judged = deep_versus_ahead(rows)

@@ -18,6 +18,7 @@ from fviz.atomic import os_error, replacing, write_text
 from fviz.errors import FvizError
 from fviz.evaluate import EstimatorResult, PairResult
 from fviz.run.config import PAYLOAD_DIR, RESULTS_FILE, RUN_FILE, RunConfig
+from fviz.stats import number
 
 
 def payload_path(out_dir: Path, index: int) -> Path:
@@ -60,8 +61,6 @@ def load_payload(path: Path, result: PairResult) -> PairResult:
 # ------------------------------------------------------------------------------ records
 
 
-def _float(v) -> float:
-    return float("nan") if v is None else float(v)
 
 
 def result_from_record(rec: dict[str, Any], config: RunConfig) -> PairResult:
@@ -75,14 +74,14 @@ def result_from_record(rec: dict[str, Any], config: RunConfig) -> PairResult:
             estimators=[EstimatorResult(n, None, {}, 0.0, rec["error"]) for n in config.series_names()],
         )
     array = lambda v: None if v is None else np.array(v)  # noqa: E731
-    ests = [EstimatorResult(e["name"], array(e["F"]), {k: _float(v) for k, v in e["metrics"].items()}, e["seconds"],
+    ests = [EstimatorResult(e["name"], array(e["F"]), {k: number(v) for k, v in e["metrics"].items()}, e["seconds"],
                             e["error"], R=array(e.get("R")), t=array(e.get("t")))
             for e in d["estimators"]]
     return PairResult(
         pair=d["pair"], norm=d["norm"], eval_threshold_px=d["eval_threshold_px"], F_gt=None if d["F_gt"] is None else np.array(d["F_gt"]),
         n_keypoints=tuple(d["n_keypoints"]), n_matches=d["n_matches"], n_eval=d["n_eval"], timings=d["timings"],
         estimators=ests, notes=d.get("notes", []),
-        match_precision={k: _float(v) for k, v in d.get("match_precision", {}).items()},
+        match_precision={k: number(v) for k, v in d.get("match_precision", {}).items()},
     )
 
 
