@@ -5,6 +5,7 @@ The public Python API (:mod:`fviz.api`), imported on first use so that ``import 
     fviz.load_pair, fviz.pair_from_images  ->  fviz.Pair
     fviz.inspect_pair                      ->  fviz.PairResult
     fviz.log_result, fviz.save_recording, fviz.log_training_step
+    fviz.reestimate, fviz.edit             ->  a PairResult of an edited match set, an EditSession
 
     fviz.select                            ->  fviz.Selection (which pairs)
     fviz.evaluate_run, fviz.read_run       ->  fviz.Run (a run folder)
@@ -14,7 +15,8 @@ The public Python API (:mod:`fviz.api`), imported on first use so that ``import 
 from fviz.version import __version__  # noqa: F401
 
 __all__ = ["Pair", "PairResult", "load_pair", "pair_from_images", "inspect_pair", "log_result", "save_recording",
-           "log_training_step", "Selection", "Run", "select", "evaluate_run", "triage_run", "compare_runs", "run_table",
+           "log_training_step", "reestimate", "edit",
+           "Selection", "Run", "select", "evaluate_run", "triage_run", "compare_runs", "run_table",
            "read_run", "merge_runs", "train"]
 
 

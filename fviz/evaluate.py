@@ -426,15 +426,18 @@ def evaluate_pair(
     cache: FeatureCache | None = None,
     timeout: float | None = None,
     matcher: Callable[[Features, Features], Matches] | None = None,
+    matches: Matches | None = None,
 ) -> PairResult:
     """Detect, match (``matcher``, default :func:`fviz.estimators.features.match`; a run's may reuse cached
-    matches), run every estimator (isolated, at most ``timeout`` s each: see
+    matches; ``matches`` given, an edit of a result's: neither), run every estimator (isolated, at most ``timeout`` s each: see
     :func:`fviz.estimators.base.run_estimator`), and score it against the ground truth."""
     if norm not in NORMS:
         raise FvizError(f"--norm {norm!r}: choose one of {', '.join(NORMS)}")
     cache = cache or FeatureCache(features)
     t0 = time.perf_counter()
-    if pair.matches is not None:  # the user's matches (--matches): no detection
+    if matches is not None:  # an edited set (fviz.reestimate): scored as it is
+        m, n_keypoints, t1 = matches, (len(matches), len(matches)), t0
+    elif pair.matches is not None:  # the user's matches (--matches): no detection
         m = user_matches(pair.matches)
         n_keypoints = pair.matches.n_keypoints or (len(m), len(m))
         t1 = t0

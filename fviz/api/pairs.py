@@ -20,6 +20,7 @@ Bad input raises :class:`fviz.errors.FvizError` with a one-line message naming t
 from __future__ import annotations
 
 import os
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
@@ -227,13 +228,11 @@ def inspect_pair(
         the pair's verdict, :mod:`fviz.verdicts`); ``to_dict()`` is exactly
         what ``fviz inspect pair --json`` prints (without its ``recording`` key).
     """
-    from fviz.diagnose import gt_suspect_note
     from fviz.estimators.base import missing_K
     from fviz.estimators.options import EstimatorOptions
     from fviz.estimators.sweep import ORACLE_SUFFIX
     from fviz.evaluate import GT_NAME, evaluate_pair
     from fviz.geometry import NORMS
-    from fviz.verdicts import verdict_of
 
     if not isinstance(pair, Pair):
         raise FvizError(f"pair: expected an fviz.Pair, got {type(pair).__name__}")
@@ -244,7 +243,8 @@ def inspect_pair(
         raise FvizError("estimators: expected names or (name, function) pairs")
     opts = EstimatorOptions(tuple(e for e in estimators if isinstance(e, str)), features, max_keypoints, ratio, mutual,
                             threshold, confidence, max_iters, seed)
-    named = iter(opts.estimators() if opts.names else [])
+    resolved = opts.estimators() if opts.names else []
+    named = iter(resolved)
     ests = [next(named) if isinstance(e, str) else e for e in estimators]
     if len({n for n, _ in ests}) != len(ests):
         raise FvizError(f"estimators: repeated name in {', '.join(n for n, _ in ests)}")
@@ -273,12 +273,39 @@ def inspect_pair(
         raise FvizError(why)
     if norm not in NORMS:
         raise FvizError(f"norm {norm!r}: choose one of {', '.join(NORMS)}")
-    result = evaluate_pair(pair, ests, opts.feature_config(), norm, eval_threshold, threshold, timeout=timeout)
-    result.notes[:0] = notes
+    specs = dict(zip([n for n, _ in resolved], opts.names))
+    inspected = Inspected(ests, specs, opts, norm, eval_threshold, threshold, timeout, notes)
+    return judged(pair, inspected, evaluate_pair(pair, ests, opts.feature_config(), norm, eval_threshold, threshold,
+                                                 timeout=timeout))
+
+
+@dataclass(frozen=True)
+class Inspected:
+    """How :func:`inspect_pair` evaluated a pair (kept on its result, ``_inspected``): the estimators resolved
+    (``ests``: [(name, fn)]; ``specs``: a built-in's name -> its spec, to resolve it again with other settings), the
+    options and the notes it added. :func:`fviz.reestimate` evaluates an edit of the matches the same way."""
+
+    ests: list
+    specs: dict
+    options: Any
+    norm: str
+    eval_threshold: float
+    threshold: float
+    timeout: float
+    notes: list
+
+
+def judged(pair: Pair, inspected: Inspected, result: PairResult) -> PairResult:
+    """``result`` with inspect's notes, the ground-truth check and the verdict; tied to ``pair``."""
+    from fviz.diagnose import gt_suspect_note
+    from fviz.verdicts import verdict_of
+
+    result.notes[:0] = inspected.notes
     if (note := gt_suspect_note(pair, result)) is not None:
         result.notes.insert(0, note)
     result.verdict = verdict_of(pair, result)
     result._of_pair = pair_fingerprint(pair)  # log_result / save_recording check they are given this pair
+    result._inspected = inspected
     return result
 
 

@@ -11,10 +11,13 @@ from typing import Optional
 from fviz.api.names import python_errors, word
 
 
-def serve(path: Path, bind: str, port: int, web_port: int, blueprint: Optional[Path] = None, static: bool = False) -> None:
+def serve(path: Path, bind: str, port: int, web_port: int, blueprint: Optional[Path] = None, static: bool = False,
+          pair=None, result=None, lines: int = 30, probe: int = 20) -> None:
     """The web viewer on ``path`` until Ctrl-C / SIGTERM / SIGHUP (``open --web`` and ``inspect --web``):
     fviz's page, where a click draws the point's epipolar lines (:mod:`fviz.web`), or with ``static``
-    Rerun's own web viewer (``rerun --serve-web``: no clicks)."""
+    Rerun's own web viewer (``rerun --serve-web``: no clicks). With the ``pair`` and its ``result`` (inspect's), the
+    page's edit tools exclude matches and re-estimate (:func:`fviz.edit`), exporting beside the recording
+    (``PATH.edited/``)."""
     from fviz.errors import FvizError
     from fviz.viewer import serve_web
     from fviz.web.server import serve_clicks
@@ -26,8 +29,17 @@ def serve(path: Path, bind: str, port: int, web_port: int, blueprint: Optional[P
         print(f"warning: {word('--bind')} {bind}: the viewer and the recording are reachable from other machines", file=sys.stderr)
     if static:
         serve_web(path, bind, port, web_port, blueprint)
-    else:
+    elif pair is None:
         serve_clicks(path, bind, web_port, blueprint)
+    else:
+        from fviz.api.editing import edit
+
+        def editor(rec, clicks):
+            session = edit(pair, result, rec, lines=lines, probe=probe)
+            session.clicks = clicks
+            return session
+
+        serve_clicks(path, bind, web_port, blueprint, editor, Path(path).with_suffix(".edited"))
 
 
 def tab_blueprint(path: Path, tab: str) -> Path:

@@ -122,7 +122,7 @@ def pair(
 
         spawn_native(path)
     if web:
-        api.viewing.serve(path, bind, port, web_port)
+        api.viewing.serve(path, bind, port, web_port, pair=p, result=result, lines=lines, probe=probe)
     if too_few_matches(result):
         raise FvizError(
             f"only {result.n_matches} matches between {p.extra.get('path_a', 'image a')} and "

@@ -175,3 +175,33 @@ class HlocReader:
 
 
 # ------------------------------------------------------------------------------ opening by flag
+
+
+# ------------------------------------------------------------------------------ writing (an edited match set)
+
+
+def write_matches(folder: str | Path, pair, x_a: np.ndarray, x_b: np.ndarray, scores: np.ndarray | None = None) -> tuple[Path, Path]:
+    """One pair's matches as hloc files in ``folder``: ``features.h5`` (one keypoint per match end in each image,
+    named by :func:`hloc_name`, pixel centres at integers as hloc's) and ``matches.h5`` (``matches0``: keypoint i of
+    a to keypoint i of b; ``matching_scores0``: ``scores`` or 1). ``--matches folder/matches.h5`` reads them back.
+    x_a, x_b: (M, 2); scores: (M,). Each file written whole or not at all."""
+    import h5py
+
+    from fviz.atomic import replacing
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    names = hloc_name(pair, "a"), hloc_name(pair, "b")
+    n = len(x_a)
+    features, matches = folder / "features.h5", folder / "matches.h5"
+    with replacing(features) as tmp, h5py.File(tmp, "w") as f:
+        for name, x, size in zip(names, (x_a, x_b), (pair.size_a, pair.size_b)):
+            g = f.create_group(name)
+            g.create_dataset("keypoints", data=np.asarray(x, float) + HLOC_PIXEL_SHIFT)
+            g.create_dataset("image_size", data=np.asarray(size, np.int64))
+            g.attrs["fviz_settings"] = "edited in fviz (one keypoint per match)"  # the shown image's pixels
+    with replacing(matches) as tmp, h5py.File(tmp, "w") as f:
+        g = f.create_group(names_to_pair(*names))
+        g.create_dataset("matches0", data=np.arange(n, dtype=np.int32))
+        g.create_dataset("matching_scores0", data=(np.ones(n) if scores is None else np.asarray(scores)).astype(np.float32))
+    return features, matches

@@ -398,8 +398,8 @@ REFERENCE_RADIUS = 1.5  # thicker than every other line (0.9), so that it reads 
 
 LABELLED = "gt/labelled"  # --gt-matches: the hand-labelled correspondences (see the module docstring)
 LABELLED_RADIUS_PX = 4.0  # screen px: larger than a keypoint, so that they stand out among them
-PAIR_FS = "pair/fundamental"
-CLICK_TEXT = "click/text"
+PAIR_FS, CLICK_TEXT = "pair/fundamental", "click/text"
+EXCLUDED = "edit/excluded"  # the matches a user excluded (fviz.editing): grey crosses over both images, root frame
 
 
 def click(view: str) -> str:
@@ -478,7 +478,7 @@ def _images_view(sizes: tuple[tuple[int, int], tuple[int, int]], name: str, cont
     import rerun.blueprint as rrb
 
     w, bottom, m = view_extent(sizes)
-    clicks = [f"+ {click(v)}/**" for v in VIEWS]  # drawn live by the viewers that send clicks (fviz.interactive)
+    clicks = [f"+ {click(v)}/**" for v in VIEWS] + [f"+ {EXCLUDED}"]  # drawn live (fviz.interactive, fviz.editing)
     return rrb.Spatial2DView(origin="/", contents=[f"+ {image('a')}", f"+ {image('b')}", *contents, *clicks], name=name,
                              visual_bounds=rrb.VisualBounds2D(x_range=[-0.5 - m, w - 0.5 + m],
                                                               y_range=[-0.5 - m, bottom - 0.5]),

@@ -23,6 +23,7 @@ import collections
 import hmac
 import html
 import ipaddress
+import json
 import secrets
 import socket
 import sys
@@ -30,6 +31,7 @@ import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
+from typing import Callable
 from urllib.parse import urlsplit
 
 from fviz.errors import FvizError
@@ -70,13 +72,13 @@ class ClickApp:
     ``timings``: per click (seconds from the event received to its bytes ready), for the benchmark; ``events``:
     the last ``KEEP_EVENTS`` events received, each cut to ``KEEP_EVENT_CHARS`` (both bounded)."""
 
-    def __init__(self, path: Path, blueprint: Path | None = None):
+    def __init__(self, path: Path, blueprint: Path | None = None, editor=None, export_to: Path | None = None):
         from fviz.record.reader import click_pairs, store_ids, timelines
         from fviz.record import layout as L
         from fviz.rerun_compat import check_version
 
         check_version()  # another rerun: one line when the server starts, not an error per click
-        self.path, self.blueprint = Path(path), blueprint
+        self.path, self.blueprint, self.editor, self.export_to = Path(path), blueprint, editor, export_to
         self.ids = store_ids(path)
         self.pairs = click_pairs(path)
         self.stamps = tuple(t for t in timelines(path) if t == L.PROBE_TIMELINE)
@@ -86,8 +88,9 @@ class ClickApp:
     def initial(self) -> list[bytes]:
         return [self.path.read_bytes()] + ([Path(self.blueprint).read_bytes()] if self.blueprint else [])
 
-    def new_connection(self):
-        """-> answer(event JSON) -> bytes of the click's data, or None."""
+    def new_connection(self) -> tuple[list[str], Callable[[str], list[bytes | str]]]:
+        """-> (texts to send first: the edit tools' status when the pair is editable, answer(message) -> what to
+        send back: the bytes of a click's or an edit's data, and an edit's status (JSON text))."""
         import rerun as rr
 
         from fviz.interactive import ClickSession
@@ -96,21 +99,79 @@ class ClickApp:
         rec = rr.RecordingStream(self.ids[0], recording_id=self.ids[1], send_properties=False)
         stream = rec.binary_stream()
         session = ClickSession(rec, self.pairs, self.stamps)
+        edits = self.editor(rec, session) if self.editor is not None else None
+        hello = [json.dumps({"fviz": "edit", **edits.status(), **self._tools(edits)})] if edits is not None else []
+        box = [False]  # drawing a box: the next two clicks are its corners
 
-        def answer(text: str) -> bytes | None:
+        def answer(text: str) -> list[bytes | str]:
             t0 = time.perf_counter()
             self.events.append(text[:KEEP_EVENT_CHARS])
+            command = edit_command(text)
+            if command is not None:
+                if edits is None:
+                    return [json.dumps({"fviz": "error", "error": "this recording cannot be edited here"})]
+                if command.get("op") == "box":
+                    edits.box, box[0] = None, True
+                    return [json.dumps({"fviz": "box", "text": "box: click two corners in one image"})]
+                try:
+                    reply = {"fviz": "edit", **edits.command(command, self.export_to)}
+                except FvizError as exc:
+                    reply = {"fviz": "error", "error": str(exc)}
+                data = stream.read(flush=True)
+                self.timings.append(time.perf_counter() - t0)
+                return [b for b in (data,) if b] + [json.dumps(reply, default=str)]
             try:
                 event = viewer_event_from_json(text)
             except (ValueError, KeyError):
-                return None
+                return []
+            if box[0] and (where := clicked_pixel(event, session)) is not None:
+                if edits.corner(*where) is None:
+                    return [json.dumps({"fviz": "box", "text": "box: the first corner is set; click the other one in the same image"})]
+                box[0] = False
+                data = stream.read(flush=True)
+                self.timings.append(time.perf_counter() - t0)
+                return [data, json.dumps({"fviz": "edit", **edits.status()})]
             if session.on_event(event) is None:
-                return None
+                return []
             data = stream.read(flush=True)
             self.timings.append(time.perf_counter() - t0)
-            return data
+            c = session.last
+            clicked = [json.dumps({"fviz": "click", "match": c.match})] if edits is not None and c is not None else []
+            return [data, *clicked]
 
-        return answer
+        return hello, answer
+
+    def _tools(self, edits) -> dict:
+        """What the page's edit tools offer: the F's to measure residuals under, the robust estimators (threshold,
+        iteration cap), whether it can export."""
+        from fviz.diagnose import is_robust
+
+        names = [e.name for e in edits.base.estimators if e.F is not None and not e.error]
+        robust = [n for n, _ in edits.base._inspected.ests if is_robust(n)]
+        return {"fs": names, "robust": robust, "export": self.export_to is not None}
+
+
+def clicked_pixel(event, session) -> tuple[str, object] | None:
+    """(view, pixel) a selection event's position falls on, in the pair at the session's cursor; None otherwise."""
+    from fviz.interactive import locate
+
+    fs = session.pairs.get(session.index)
+    for item in getattr(event, "items", None) or () if getattr(event, "type", None) == "selection_change" else ():
+        if getattr(item, "type", None) == "entity" and item.position is not None and fs is not None:
+            return locate(item.position, fs.size_a, fs.size_b)
+    return None
+
+
+def edit_command(text: str) -> dict | None:
+    """The page's edit command in ``text`` (``{"fviz_edit": {"op": ...}}``), None for anything else (a viewer
+    event)."""
+    if not text.startswith('{"fviz_edit"'):
+        return None
+    try:
+        cmd = json.loads(text).get("fviz_edit")
+    except ValueError:
+        return None
+    return cmd if isinstance(cmd, dict) else None
 
 
 # ------------------------------------------------------------------------------------------ who may ask
@@ -171,8 +232,9 @@ class PageServer:
     """The page, the viewer's files and the WebSocket on ``host:port`` (an asyncio loop in one daemon thread)
     until :meth:`close`. ``url``: the page's URL, with the token."""
 
-    def __init__(self, path: Path, host: str = "127.0.0.1", port: int = 9090, blueprint: Path | None = None):
-        self.app = ClickApp(path, blueprint)
+    def __init__(self, path: Path, host: str = "127.0.0.1", port: int = 9090, blueprint: Path | None = None, editor=None,
+                 export_to: Path | None = None):
+        self.app = ClickApp(path, blueprint, editor, export_to)
         self.host, self.port = host, port
         self.token = secrets.token_urlsafe(32)
         self.static = static_dir()
@@ -311,21 +373,25 @@ class PageServer:
         for blob in await loop.run_in_executor(self.pool, self.app.initial):
             if not await self._send(ws, request, blob):
                 return
-        answer = await loop.run_in_executor(self.pool, self.app.new_connection)
+        hello, answer = await loop.run_in_executor(self.pool, self.app.new_connection)
+        for text in hello:
+            if not await self._send(ws, request, text):
+                return
         async for msg in ws:  # a message over MAX_MESSAGE: aiohttp closes the socket (1009)
             if msg.type == WSMsgType.BINARY:
                 await ws.close(code=WSCloseCode.UNSUPPORTED_DATA, message=b"text messages only")
                 return
             if msg.type == WSMsgType.TEXT:
-                out = await loop.run_in_executor(self.pool, answer, msg.data)
-                if out and not await self._send(ws, request, out):
-                    return
+                for out in await loop.run_in_executor(self.pool, answer, msg.data):
+                    if not await self._send(ws, request, out):
+                        return
 
     @staticmethod
-    async def _send(ws, request, data: bytes) -> bool:
+    async def _send(ws, request, data: bytes | str) -> bool:
         """Send, or drop a client that does not read it within SEND_TIMEOUT_S (or is gone): whether it was sent."""
         try:
-            await asyncio.wait_for(ws.send_bytes(data), SEND_TIMEOUT_S)
+            sent = ws.send_str(data) if isinstance(data, str) else ws.send_bytes(data)
+            await asyncio.wait_for(sent, SEND_TIMEOUT_S)
             return True
         except (asyncio.TimeoutError, ConnectionError):
             if request.transport is not None:
@@ -333,14 +399,17 @@ class PageServer:
             return False
 
 
-def serve_clicks(path: Path, host: str = "127.0.0.1", web_port: int = 9090, blueprint: Path | None = None) -> None:
-    """Serve the clickable page until Ctrl-C, SIGTERM or SIGHUP; print its URL once it serves."""
+def serve_clicks(path: Path, host: str = "127.0.0.1", web_port: int = 9090, blueprint: Path | None = None, editor=None,
+                 export_to: Path | None = None) -> None:
+    """Serve the clickable page until Ctrl-C, SIGTERM or SIGHUP; print its URL once it serves. ``editor(rec,
+    clicks) -> EditSession`` makes each page's edit tools (:mod:`fviz.editing`); ``export_to``: their export folder."""
     from fviz.viewer import prepare_serving
 
     prepare_serving(path, host, None, web_port)
-    server = PageServer(path, host, web_port, blueprint).start()
+    server = PageServer(path, host, web_port, blueprint, editor, export_to).start()
     try:
-        print(f"web viewer: {server.url}  (click a point of either image for its epipolar lines; Ctrl-C to stop)",
+        what = "; edit the matches with the tools at the top" if editor is not None else ""
+        print(f"web viewer: {server.url}  (click a point of either image for its epipolar lines{what}; Ctrl-C to stop)",
               flush=True)
         while True:  # short naps: a signal the kernel hands to a server thread only wakes the main one at its next tick
             time.sleep(0.2)
