@@ -189,6 +189,17 @@ def diagnose(pair, result, two_view: bool = True) -> dict[str, Any]:
     return with_two_view(diag, two_view_evidence(pair, result)) if two_view else diag
 
 
+def diagnosed(pair, result) -> dict[str, Any]:
+    """:func:`diagnose` (``two_view=False``) of an evaluated pair, computed once per result (the ground-truth check
+    and the verdict both read it)."""
+    key = (id(pair), len(result.matches), tuple(id(r) for r in result.estimators))
+    cached = getattr(result, "_diagnosed", None)
+    if cached is None or cached[0] != key:
+        cached = (key, diagnose(pair, result, two_view=False))
+        result._diagnosed = cached
+    return cached[1]
+
+
 def gt_epipole_distance(pair) -> float:
     """How far F_gt's epipoles lie from the image centres, in image diagonals (the larger of the two; inf for an
     epipole at infinity: rectified stereo)."""
@@ -369,7 +380,7 @@ def gt_suspect_note(pair, result) -> str | None:
     None when the ground truth looks right (or the pair has too few matches to judge)."""
     if not pair.has_gt or result.matches is None or len(result.matches) == 0 or result.eval_mask is None:
         return None
-    suspect = gt_suspect(diagnose(pair, result, two_view=False), result.to_dict()["estimators"])
+    suspect = gt_suspect(diagnosed(pair, result), result.to_dict()["estimators"])
     if suspect is None:
         return None
     return (f"{GT_SUSPECT_NOTE}{suspect['why']}; the overview draws {suspect['reference']}'s lines as "

@@ -303,8 +303,8 @@ def _agreement_verdict(res: dict, names: list[str]) -> Verdict:
 
 def verdict_of(pair, result, by: str | None = None) -> Verdict:
     """:func:`pair_verdict` of an evaluated pair (:class:`fviz.evaluate.PairResult`), its evidence computed here."""
-    from fviz.diagnose import diagnose
+    from fviz.diagnose import diagnosed
 
     ok = result.matches is not None and result.eval_mask is not None
     return pair_verdict({"error": None, "result": result.to_dict(),
-                         "diagnostics": diagnose(pair, result, two_view=False) if ok else None}, by)
+                         "diagnostics": diagnosed(pair, result) if ok else None}, by)

@@ -13,7 +13,7 @@ matches kept, and is scored, diagnosed and judged the same way.
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import Any, Mapping
+from typing import TYPE_CHECKING, Any, Mapping
 
 import numpy as np
 
@@ -21,6 +21,10 @@ from fviz.api.names import python_errors
 from fviz.api.pairs import Inspected, check_result_of, judged
 from fviz.data.pair import Pair
 from fviz.errors import FvizError
+
+if TYPE_CHECKING:  # pragma: no cover
+    from fviz.editing import EditSession
+    from fviz.evaluate import PairResult
 
 
 def _per_estimator(value, names: list[str], what: str) -> dict[str, Any]:
@@ -52,8 +56,9 @@ def _resolved(inspected: Inspected, settings: dict[str, dict[str, Any]]) -> list
 
 
 @python_errors
-def reestimate(pair: Pair, result, keep: np.ndarray | None = None, *, threshold: float | Mapping[str, float] | None = None,
-               max_iters: int | Mapping[str, int] | None = None):
+def reestimate(pair: Pair, result: PairResult, keep: np.ndarray | None = None, *,
+               threshold: float | Mapping[str, float] | None = None,
+               max_iters: int | Mapping[str, int] | None = None) -> PairResult:
     """Run every estimator of ``result`` again on the matches ``keep`` selects, with other robust settings if given.
 
     Args:
@@ -64,8 +69,8 @@ def reestimate(pair: Pair, result, keep: np.ndarray | None = None, *, threshold:
         max_iters: their iteration cap, one for all or ``{name: n}``.
 
     Returns:
-        A new :class:`fviz.evaluate.PairResult` (the paper's protocol on the kept matches, diagnosis, verdict), whose
-        ``matches`` are the kept ones, in order.
+        A new PairResult (the paper's protocol on the kept matches, diagnosis, verdict), whose ``matches`` are the
+        kept ones, in order.
     """
     from fviz.evaluate import evaluate_pair
 
@@ -99,7 +104,7 @@ def reestimate(pair: Pair, result, keep: np.ndarray | None = None, *, threshold:
 
 
 @python_errors
-def edit(pair: Pair, result, rec=None, *, index: int = 0, lines: int = 30, probe: int = 20):
+def edit(pair: Pair, result: PairResult, rec: Any = None, *, index: int = 0, lines: int = 30, probe: int = 20) -> EditSession:
     """An :class:`fviz.editing.EditSession` on ``result``'s matches: ``exclude``, ``exclude_above``, ``exclude_box``,
     ``restore``, ``toggle``, ``set`` (threshold / max_iters), ``reset``, ``export``; each returns the new result
     (:func:`reestimate`) and, with ``rec`` (a ``rerun.RecordingStream``), draws it at ``index`` as
