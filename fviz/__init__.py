@@ -2,7 +2,8 @@
 
 The public Python API (:mod:`fviz.api`), imported on first use so that ``import fviz`` stays instant::
 
-    fviz.load_pair, fviz.pair_from_images  ->  fviz.Pair
+    fviz.kitti_pair, fviz.synthetic_pair, fviz.pair_from_images, fviz.pairs_file_pair, fviz.colmap_pair,
+    fviz.with_matches, fviz.load_pair (every source's flags)  ->  fviz.Pair
     fviz.inspect_pair                      ->  fviz.PairResult
     fviz.log_result, fviz.save_recording, fviz.log_training_step
     fviz.reestimate, fviz.edit             ->  a PairResult of an edited match set, an EditSession
@@ -15,7 +16,7 @@ The public Python API (:mod:`fviz.api`), imported on first use so that ``import 
 from fviz.version import __version__  # noqa: F401
 
 __all__ = ["Pair", "PairResult", "load_pair", "pair_from_images", "inspect_pair", "log_result", "save_recording",
-           "log_training_step", "reestimate", "edit",
+           "log_training_step", "kitti_pair", "synthetic_pair", "pairs_file_pair", "colmap_pair", "with_matches", "reestimate", "edit",
            "Selection", "Run", "select", "evaluate_run", "triage_run", "compare_runs", "run_table",
            "read_run", "merge_runs", "train"]
 

@@ -17,17 +17,18 @@ _RUNS = ("Selection", "Run", "Compared", "select", "evaluate_run", "triage_run",
          "merge_runs")
 _TRAINING = ("train",)
 _EDITING = ("reestimate", "edit")
+_SOURCES = ("kitti_pair", "synthetic_pair", "pairs_file_pair", "colmap_pair", "with_matches")
 _MODULE = {**{n: "pairs" for n in _PAIRS}, **{n: "runs" for n in _RUNS}, **{n: "training" for n in _TRAINING},
-           **{n: "editing" for n in _EDITING}}
+           **{n: "editing" for n in _EDITING}, **{n: "sources" for n in _SOURCES}}
 
 __all__ = ["Pair", "PairResult", "load_pair", "pair_from_images", "inspect_pair", "log_result", "save_recording",
-           "log_training_step", *_EDITING, *_RUNS, *_TRAINING]
+           "log_training_step", *_SOURCES, *_EDITING, *_RUNS, *_TRAINING]
 
 
 def __getattr__(name: str):
     if name in _MODULE:
         return getattr(importlib.import_module(f"fviz.api.{_MODULE[name]}"), name)
-    if name in ("pairs", "runs", "training", "viewing", "names", "editing"):
+    if name in ("pairs", "runs", "training", "viewing", "names", "editing", "sources"):
         return importlib.import_module(f"fviz.api.{name}")
     raise AttributeError(f"module 'fviz.api' has no attribute {name!r}")
 

@@ -27,6 +27,7 @@ from typing import TYPE_CHECKING, Any, Mapping, Sequence
 import numpy as np
 
 from fviz.api.names import python_errors
+from fviz.api.sources import KITTI_ROOT_ENV
 from fviz.data.arrays import checked_matrix, pair_from_images
 from fviz.data.pair import Pair
 from fviz.errors import FvizError
@@ -41,7 +42,6 @@ if TYPE_CHECKING:  # pragma: no cover
 __all__ = ["Pair", "PairResult", "load_pair", "pair_from_images", "inspect_pair", "log_result", "save_recording",
            "log_training_step", "watch_points", "WATCH_POINTS"]
 
-KITTI_ROOT_ENV = "FVIZ_KITTI_ROOT"
 DEFAULT_ESTIMATORS = ("8point", "ransac", "magsac")  # fviz.estimators.registry.DEFAULT_ESTIMATORS (checked in tests)
 
 
@@ -130,10 +130,9 @@ def load_pair(
     if p is None:
         p = _kitti_or_synthetic(kitti_root, sequence, drive, frame, kind, step, cams, synthetic, seed)
     if matches or gt_matches:
-        from fviz.data.sources import WithCorrespondences, attach
+        from fviz.api.sources import with_matches
 
-        given = WithCorrespondences(None, matches, gt_matches, n_pairs=1)
-        p = attach(p, given.matches, given.gt_matches)
+        p = with_matches(p, matches or None, gt_matches=gt_matches or None)
     return p
 
 
@@ -167,16 +166,15 @@ def _user_pair(user: dict) -> Pair | None:
 
 
 def _kitti_or_synthetic(kitti_root, sequence, drive, frame, kind, step, cams, synthetic: bool, seed: int) -> Pair:
+    from fviz.api.sources import kitti_pair, synthetic_pair
+
     if synthetic:
-        from fviz.data.synthetic import SceneConfig, synthetic_pair
-
-        return synthetic_pair(seed, SceneConfig(stereo=kind == "stereo"))
-    from fviz.data.kitti import open_dataset
-
+        return synthetic_pair(seed, kind=kind)
     root = kitti_root or os.environ.get(KITTI_ROOT_ENV)
     if not root:
         raise FvizError(f"--kitti-root: missing (or set ${KITTI_ROOT_ENV}); use --synthetic for a scene that needs no dataset")
-    return open_dataset(Path(root), sequence, drive).pair(frame, kind, step, None if cams is None else tuple(cams))
+    return kitti_pair(root, sequence=sequence, drive=drive, frame=frame, kind=kind, step=step,
+                      cams=None if cams is None else tuple(cams))
 
 # ---------------------------------------------------------------------------------------------- evaluation
 

@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Iterator, Sequence
 
 from fviz.api.names import python_errors, word
+from fviz.api.sources import KITTI_ROOT_ENV
 from fviz.data.selection import Selection
 from fviz.errors import FvizError
 from fviz.run.config import SUMMARY_JSON, RunConfig
@@ -36,7 +37,6 @@ if TYPE_CHECKING:  # pragma: no cover
 __all__ = ["Selection", "Run", "Compared", "select", "evaluate_run", "triage_run", "compare_runs", "run_table",
            "read_run", "merge_runs"]
 
-KITTI_ROOT_ENV = "FVIZ_KITTI_ROOT"
 COMPARE_FILE = "compare.md"  # fviz.compare.COMPARE_FILE (checked in tests)
 
 
