@@ -13,7 +13,7 @@ import time
 
 import torch
 
-from fviz.data import synthetic
+from fviz.data.synthetic import batch as synthetic_batch
 from fviz.data.synthetic import SceneConfig, render_batch, synthetic_pair
 
 
@@ -48,13 +48,13 @@ def main() -> None:
     if torch.cuda.is_available():
         print(f"cuda: {torch.cuda.get_device_name()}")
         for graphs in (True, False):
-            synthetic.CUDA_GRAPHS = graphs
+            synthetic_batch.CUDA_GRAPHS = graphs
             for c in (SceneConfig(width=320, height=96), cfg):
                 for batch in (16, 64, 256):
                     rate = pairs_per_second(batch, args.seconds, "cuda", c)
                     print(f"  cuda {'graph' if graphs else 'eager'} {c.width}x{c.height} batch {batch:3d}: {rate:9.1f} pairs/s"
                           f"  ({batch / rate * 1e3:7.2f} ms/batch, {2 * rate:9.0f} views/s)")
-        synthetic.CUDA_GRAPHS = True
+        synthetic_batch.CUDA_GRAPHS = True
     for stereo in (False, True):
         c = SceneConfig(stereo=stereo)
         synthetic_pair(0, c)

@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 import torch
 
-from fviz.data.synthetic import _cross, _fundamental, _mm, _rotation, _sincos, intrinsics
+from fviz.data.synthetic import intrinsics
+from fviz.data.synthetic.elementwise import cross, fundamental, mm, rotation, sincos
 from fviz.estimators.baselines import mean_fundamental
 from fviz.geometry import (
     algebraic,
@@ -195,7 +196,7 @@ def test_synthetic_ground_truth_f_is_the_numpy_one_fbn_normalized():
     K = intrinsics(320, 96)
     R = np.stack([_rotation_np(rng) for _ in range(B)])
     t = rng.normal(size=(B, 3))
-    got = _fundamental(torch.from_numpy(R), torch.from_numpy(t), torch.from_numpy(np.linalg.inv(K))).numpy()
+    got = fundamental(torch.from_numpy(R), torch.from_numpy(t), torch.from_numpy(np.linalg.inv(K))).numpy()
     np.testing.assert_allclose(got, normalize(fundamental_from_motion(K, K, R, t), "fbn"), rtol=1e-10, atol=1e-13)
 
 
@@ -203,15 +204,15 @@ def test_synthetic_small_matrix_helpers_are_numpy_s():
     rng = np.random.default_rng(9)
     a, b = rng.normal(size=(2, B, 3))
     A, M = rng.normal(size=(2, B, 3, 3))
-    np.testing.assert_allclose(_cross(torch.from_numpy(a), torch.from_numpy(b)).numpy(), np.cross(a, b), rtol=1e-12, atol=1e-14)
-    np.testing.assert_allclose(_mm(torch.from_numpy(A), torch.from_numpy(M)).numpy(), A @ M, rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(cross(torch.from_numpy(a), torch.from_numpy(b)).numpy(), np.cross(a, b), rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(mm(torch.from_numpy(A), torch.from_numpy(M)).numpy(), A @ M, rtol=1e-12, atol=1e-14)
     x = np.linspace(-4, 4, 1001)
-    s, c = _sincos(torch.from_numpy(x))
+    s, c = sincos(torch.from_numpy(x))
     np.testing.assert_allclose(s.numpy(), np.sin(x), atol=1e-14)
     np.testing.assert_allclose(c.numpy(), np.cos(x), atol=1e-14)
     yaw, pitch, roll = rng.uniform(-0.5, 0.5, size=(3, B))
     ang = np.stack([yaw, pitch, roll], -1)
-    got = _rotation(torch.from_numpy(np.sin(ang)), torch.from_numpy(np.cos(ang))).numpy()
+    got = rotation(torch.from_numpy(np.sin(ang)), torch.from_numpy(np.cos(ang))).numpy()
 
     def rot(axis, v):
         c, s = math.cos(v), math.sin(v)

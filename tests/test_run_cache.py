@@ -179,7 +179,7 @@ def test_a_run_decodes_each_frame_once_and_names_its_pixels(kitti_root, monkeypa
     import cv2
     import h5py
 
-    import fviz.data.kitti as kitti
+    import fviz.data.kitti.files as kitti
     from fviz.cli.eval import RUN_PARAMS, RunArgs
     from fviz.run.config import prepare
     from fviz.run.evaluator import CACHE_FRESH, PairEvaluator

@@ -9,8 +9,13 @@ import numpy as np
 import pytest
 import torch
 
-from fviz.data import synthetic as syn
-from fviz.data.synthetic import SceneConfig, intrinsics, render_batch, synthetic_pair
+from fviz.data.synthetic import SceneConfig, batch, intrinsics, render_batch, synthetic_pair
+from fviz.data.synthetic.consts import scene_consts
+from fviz.data.synthetic.draws import mix64, shr
+from fviz.data.synthetic.elementwise import sincos
+from fviz.data.synthetic.pair_source import _cast, _view_planes
+from fviz.data.synthetic.raster import plane_coefficients, render_views
+from fviz.data.synthetic.scene import sample_scenes
 from fviz.errors import FvizError
 from fviz.geometry import f_distance, homogeneous, symmetric_epipolar_distance
 
@@ -150,12 +155,12 @@ def test_occlusion_hides_points_behind_boxes():
 
 def test_renderer_agrees_with_direct_ray_casting():
     cfg = SceneConfig(n_boxes=6, width=400, height=120)
-    coef, valid = syn._view_planes(21, cfg)
+    coef, valid = _view_planes(21, cfg)
     out = render_batch([21], cfg, with_depth=True)
     rng = np.random.default_rng(0)
     pix = np.stack([rng.integers(0, 400, 20000), rng.integers(0, 120, 20000)], 1).astype(np.float64)
     for view, key in enumerate(["depth_a", "depth_b"]):
-        inv_z, _ = syn._cast(coef[view], valid[view], pix)
+        inv_z, _ = _cast(coef[view], valid[view], pix)
         ref = np.where(inv_z > 0, 1.0 / np.where(inv_z > 0, inv_z, 1.0), np.inf)
         got = out[key][0, 0].numpy()[pix[:, 1].astype(int), pix[:, 0].astype(int)]
         assert np.isclose(got, ref, rtol=1e-4).mean() > 0.999
@@ -208,16 +213,16 @@ def test_any_batch_renders_each_seed_alike():
 
 
 def test_scene_stream_and_trig_are_exact_elementwise_maths():
-    u = syn._shr(syn._mix64(torch.arange(20000, dtype=torch.int64) * 7919), 11).double() * 2.0**-53
+    u = shr(mix64(torch.arange(20000, dtype=torch.int64) * 7919), 11).double() * 2.0**-53
     assert 0.0 <= u.min() and u.max() < 1.0 and abs(u.mean().item() - 0.5) < 0.01
     x = torch.linspace(-4.0, 4.0, 10001, dtype=torch.float64)
-    s, c = syn._sincos(x)
+    s, c = sincos(x)
     assert (s - torch.sin(x)).abs().max() < 4e-15 and (c - torch.cos(x)).abs().max() < 4e-15
     # a scene's parameters do not depend on the seeds beside it
     cfg = _small()
-    c = syn._consts(cfg, torch.device("cpu"))
-    one = syn._sample(torch.tensor([5]), cfg, c)
-    two = syn._sample(torch.tensor([9, 5]), cfg, c)
+    c = scene_consts(cfg, torch.device("cpu"))
+    one = sample_scenes(torch.tensor([5]), cfg, c)
+    two = sample_scenes(torch.tensor([9, 5]), cfg, c)
     assert torch.equal(one["planes"][0], two["planes"][1]) and torch.equal(one["planes"][1], two["planes"][3])
 
 
@@ -241,11 +246,11 @@ def test_noise_is_independent_between_views():
 def test_gpu_algorithm_renders_the_cpu_pixels(cfg):
     """The sync-free renderer (all views and planes at once, binary search per pixel) that runs on
     GPUs gives exactly the CPU renderer's pixels; checked here on the CPU."""
-    c = syn._consts(cfg, torch.device("cpu"))
-    sc = syn._sample(torch.arange(6), cfg, c)
-    coef, shade, valid = syn._plane_coefficients(sc["planes"], sc["R_cw"], sc["C"], c.kinv)
-    per_view = syn._render(coef, shade, valid, sc["sky"], cfg.height, cfg.width, c)
-    at_once = syn._render(coef, shade, valid, sc["sky"], cfg.height, cfg.width, c, sync_free=True)
+    c = scene_consts(cfg, torch.device("cpu"))
+    sc = sample_scenes(torch.arange(6), cfg, c)
+    coef, shade, valid = plane_coefficients(sc["planes"], sc["R_cw"], sc["C"], c.kinv)
+    per_view = render_views(coef, shade, valid, sc["sky"], cfg.height, cfg.width, c)
+    at_once = render_views(coef, shade, valid, sc["sky"], cfg.height, cfg.width, c, sync_free=True)
     assert all(torch.equal(x, y) for x, y in zip(per_view, at_once))
     out = render_batch(list(range(6)), cfg, with_depth=True)
     assert out["image_a"].shape == (6, 1, 48, 160) and torch.isfinite(out["F"]).all()
@@ -277,8 +282,8 @@ def test_cuda_graph_side_stream_eager_and_batch_agree(monkeypatch):
     seeds = torch.arange(3, device="cuda") * 4 + 4  # made on the caller's stream: 4, 8, 12 ...
     seeds[2] = 15
     again = render_batch(seeds, cfg, "cuda")
-    monkeypatch.setattr(syn, "CUDA_GRAPHS", False)
-    monkeypatch.setattr(syn, "SIDE_STREAM", False)
+    monkeypatch.setattr(batch, "CUDA_GRAPHS", False)
+    monkeypatch.setattr(batch, "SIDE_STREAM", False)
     eager = render_batch([4, 8, 15], cfg, "cuda")
     single = render_batch([8], cfg, "cuda")
     for k in graphed:
@@ -289,8 +294,8 @@ def test_cuda_graph_side_stream_eager_and_batch_agree(monkeypatch):
 @cuda
 @pytest.mark.parametrize("graphs, side", [(True, True), (False, True), (True, False)])
 def test_cuda_render_does_not_synchronise(monkeypatch, graphs, side):
-    monkeypatch.setattr(syn, "CUDA_GRAPHS", graphs)
-    monkeypatch.setattr(syn, "SIDE_STREAM", side)
+    monkeypatch.setattr(batch, "CUDA_GRAPHS", graphs)
+    monkeypatch.setattr(batch, "SIDE_STREAM", side)
     cfg = _small()
     render_batch([1, 2], cfg, "cuda")  # first call: allocations, graph capture
     on_gpu = torch.tensor([5, 6], device="cuda")

@@ -66,7 +66,7 @@ def transfer_fundamental(F: np.ndarray, H_a: np.ndarray, H_b: np.ndarray) -> np.
     """The same epipolar geometry in new pixel coordinates x_a' = H_a x_a, x_b' = H_b x_b: H_b^-T F H_a^-1.
 
     (..., 3, 3) x 3 -> (..., 3, 3), not normalized (e.g. rectified KITTI -> the unrectified cameras, whose F
-    has F33 != 0: :func:`fviz.data.kitti.unrectifying_homographies`).
+    has F33 != 0: :func:`fviz.data.kitti.raw_cameras`).
     """
     H_b_inv_T = np.swapaxes(np.linalg.inv(np.asarray(H_b, np.float64)), -1, -2)
     return H_b_inv_T @ np.asarray(F, np.float64) @ np.linalg.inv(np.asarray(H_a, np.float64))
