@@ -15,9 +15,7 @@ from fviz.geometry import clip_lines, lines_in_a, lines_in_b, symmetric_epipolar
 from fviz.record import layout as L
 from fviz.record.marks import Colors, log_marks, names_of, rgb, ring
 
-PROBE_STEPS = 20
-
-
+PROBE_STEPS = 20  # the probe's steps by default
 PROBE_BY_SCORE = "score"
 PROBE_SPACING_PX = 20.0  # screen px: a match this near one already walked (at either end) is a near-duplicate
 

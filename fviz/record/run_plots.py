@@ -16,6 +16,13 @@ from fviz.record import layout as L
 from fviz.record.marks import Colors, names_of, rgb
 
 
+# The series' values (what readers read) and, for the errors, the log10 their plots draw (layout.metric_plot).
+VALUE_PATHS = tuple([L.metric(k) for k in L.SERIES_METRICS] + [L.motion(k) for k, _ in L.MOTION_TRACKS])
+SERIES_PATHS = VALUE_PATHS + tuple(L.metric_plot(k) for k in L.SERIES_METRICS if k in L.LOG_METRICS)
+POINT_PATHS = frozenset({L.motion("epipole_dir_deg")})  # sporadic samples (the pairs whose epipole is at infinity)
+MARKER_SIZE = 3.0
+
+
 def log_static(rec, estimator_names: list[str], series: bool = False, legend: bool = True, points: bool = False,
                ranges: dict | None = None, motion: bool = True) -> None:
     """Once per recording: the residual legend (``legend``: when it holds matches) and, for runs (``series``),
@@ -29,13 +36,6 @@ def log_static(rec, estimator_names: list[str], series: bool = False, legend: bo
             cut = (ranges or {}).get(path) or (0, 0, {})
             rec.log(path, *series_styles(colors, points or path in POINT_PATHS, cut[2]), static=True)
         log_legend(rec, colors)
-
-
-# The series' values (what readers read) and, for the errors, the log10 their plots draw (layout.metric_plot).
-VALUE_PATHS = tuple([L.metric(k) for k in L.SERIES_METRICS] + [L.motion(k) for k, _ in L.MOTION_TRACKS])
-SERIES_PATHS = VALUE_PATHS + tuple(L.metric_plot(k) for k in L.SERIES_METRICS if k in L.LOG_METRICS)
-POINT_PATHS = frozenset({L.motion("epipole_dir_deg")})  # sporadic samples (the pairs whose epipole is at infinity)
-MARKER_SIZE = 3.0
 
 
 def series_styles(colors: Colors, points: bool = False, cut: Iterable[str] = ()) -> list:
