@@ -260,7 +260,7 @@ def session_for(path, rec=None):
 
 def pair_fs(result, size_a: tuple[int, int], size_b: tuple[int, int]) -> PairFs:
     """The :class:`PairFs` of an evaluated pair (:class:`fviz.evaluate.PairResult`; failed estimators left
-    out), as :func:`fviz.record.writer.log_fundamentals` stores it."""
+    out), as :func:`fviz.record.pair_recording.log_fundamentals` stores it."""
     ok = [r for r in result.estimators if not r.error and r.F is not None]
     m = result.matches
     x_a, x_b = (np.zeros((0, 2)), np.zeros((0, 2))) if m is None else (m.x_a, m.x_b)

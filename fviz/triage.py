@@ -390,7 +390,9 @@ def write_triage_recording(path: Path, config, out_dir: Path, shown: list[Ranked
 
     from fviz.data.pair import PairId
     from fviz.diagnose import gt_suspect_note
-    from fviz.record.writer import RecordingWriter, log_pair, log_static, series_ranges_of
+    from fviz.record.pair_recording import log_pair
+    from fviz.record.run_plots import log_static, series_ranges_of
+    from fviz.record.writer import RecordingWriter
     from fviz.run import PairEvaluator, log_summary_pair, result_from_record
 
     evaluator = PairEvaluator(config, out_dir)

@@ -21,7 +21,7 @@ import signal
 import sys
 
 PRELOAD = ("numpy", "cv2", "rerun", "torch", "h5py", "fviz.cli", "fviz.entry", "fviz.api", "fviz.evaluate",
-           "fviz.record.writer", "fviz.run.execute", "fviz.diagnose", "fviz.estimators.classical", "fviz.compare",
+           "fviz.record.pair_recording", "fviz.run.execute", "fviz.diagnose", "fviz.estimators.classical", "fviz.compare",
            "fviz.viewer", "fviz.data.synthetic", "fviz.train.loop", "fviz.models.model")
 
 

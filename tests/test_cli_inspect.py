@@ -11,7 +11,7 @@ from rerun.chunk import RrdReader
 
 from fviz.geometry import epipoles, symmetric_epipolar_distance
 from fviz.record import layout as L
-from fviz.record.writer import LINE_PX, TAG_CHAR_PX
+from fviz.record.marks import LINE_PX, TAG_CHAR_PX
 
 ESTIMATORS = ("8point", "ransac", "magsac")
 

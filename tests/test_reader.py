@@ -75,7 +75,9 @@ def test_triage_like_recording(odometry, tmp_path):
     """Any timeline: items on ``rank`` (preferred), the ``pair`` index kept in ``times``; failures as NaN."""
     from fviz.estimators import get_estimator
     from fviz.evaluate import evaluate_pair
-    from fviz.record.writer import RecordingWriter, log_pair, log_static
+    from fviz.record.pair_recording import log_pair
+    from fviz.record.run_plots import log_static
+    from fviz.record.writer import RecordingWriter
 
     def broken(pair, x_a, x_b):
         raise RuntimeError("no luck")

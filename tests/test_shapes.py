@@ -16,7 +16,7 @@ from sources_util import FAST
 
 from fviz.record import layout as L
 from fviz.record import reader as R
-from fviz.record.writer import TAG_CHAR_PX, TAG_ROW_PX
+from fviz.record.marks import TAG_CHAR_PX, TAG_ROW_PX
 
 SHAPES = ("3072x2048", "portrait", "4:3")
 

@@ -395,7 +395,7 @@ def save_recording(path: str | Path, pair: Pair, result: PairResult, *, lines: i
         The path written.
     """
     from fviz.atomic import target
-    from fviz.record.writer import write_pair_recording
+    from fviz.record.pair_recording import write_pair_recording
 
     if lines < 0 or probe < 0:
         raise FvizError(f"{'lines' if lines < 0 else 'probe'}: must be >= 0")

@@ -138,7 +138,7 @@ def _check_probe_by(probe_by: str | None, pair, ests, features: str) -> None:
     from fviz.errors import FvizError
     from fviz.estimators.sweep import ORACLE_SUFFIX
     from fviz.record.layout import GT
-    from fviz.record.writer import PROBE_BY_SCORE
+    from fviz.record.probe import PROBE_BY_SCORE
 
     if probe_by is None:
         return
@@ -196,7 +196,7 @@ def _print_table(result, path: Path, verdict: str) -> None:
 
         console.print("no ground truth: the estimators are compared with each other (SED and inliers over all "
                       f"matches; agreement_nsgd = NSGD to the closest other estimator): {agreement_text(result.agreement)}")
-    from fviz.record.writer import precision_lines
+    from fviz.record.pair_text import precision_lines
 
     for line in precision_lines(result.match_precision)[1:]:
         console.print(line)

@@ -62,7 +62,8 @@ def log_compare_plot(rec, c, indices: dict[str, int]) -> None:
     AnyValues ``pairs``, ``index``, ``a``, ``b`` (NaN: no value), ``only_a_fails``/``only_b_fails`` (0/1)."""
     import rerun as rr
 
-    from fviz.record.writer import _rgb, log_legend
+    from fviz.record.marks import rgb
+    from fviz.record.run_plots import log_legend
     from fviz.verdicts import HIGHER_IS_BETTER, fail_rule
 
     na, nb = c.names
@@ -114,7 +115,7 @@ def log_compare_plot(rec, c, indices: dict[str, int]) -> None:
         ok = np.isfinite(v)
         y = np.where(ok, to_y(np.where(ok, v, 1.0)), ERROR_Y)
         points += [(to_x(i), float(yy)) for i, yy in zip(index, y)]
-        point_colors += [_rgb(colors[side])] * len(v)
+        point_colors += [rgb(colors[side])] * len(v)
     rec.log(COMPARE_PAIRS,
             rr.LineStrips2D(strips + axes, colors=strip_colors + [AXIS_COLOR] * len(axes),
                             radii=strip_radii + [0.8] * len(axes)),

@@ -41,7 +41,7 @@ Entity paths (``{v}`` is the view, ``a`` or ``b``; ``{e}`` an estimator name, ``
                                 ``rotation_deg`` (angle of R) and the translation direction ``t_x``, ``t_y``,
                                 ``t_z`` (unit, the ground truth's sign)
     {v}/probe, probe/text       the ``probe`` timeline (inspect): step k rings the k-th point the probe walks
-                                (writer.probe_points: most telling first, near-duplicates skipped) in both
+                                (probe.probe_points: most telling first, near-duplicates skipped) in both
                                 images (yellow, PROBE_MARK_PX on screen and PROBE_RING_PX in the image), joins the
                                 two rings, and draws its epipolar line under every F in the F's colour; the text
                                 lists the residuals
@@ -536,7 +536,7 @@ def probe_tab(sizes):
 
 
 def legend_view(origin: str, n: int, name: str, pitch: float = 24.0):
-    """A 2D view framing the legend rows :func:`fviz.record.writer.log_legend` draws (``n`` of them)."""
+    """A 2D view framing the legend rows :func:`fviz.record.run_plots.log_legend` draws (``n`` of them)."""
     import rerun.blueprint as rrb
 
     return rrb.Spatial2DView(origin=origin, name=name, background=CHART_BACKGROUND,
@@ -550,7 +550,7 @@ def _short(v: float) -> str:
 def _series_grid(entity_of, tracks: Sequence[tuple[str, str]], name: str, ranges: dict | None, n_series: int):
     """One plot per track, its y range from ``ranges`` ({path: series_range or None}; a track with no finite
     value is left out), the plots' legends hidden (they covered the data) and one legend view instead. A series
-    cut off a plot (drawn as points there, see :func:`fviz.record.writer.series_styles`) has its 5-95 % band in
+    cut off a plot (drawn as points there, see :func:`fviz.record.run_plots.series_styles`) has its 5-95 % band in
     the plot's title."""
     import rerun.blueprint as rrb
     from rerun.blueprint.archetypes import PlotBackground, PlotLegend
@@ -577,7 +577,7 @@ CURVE_W, CURVE_H, CURVE_GAP, CURVE_PANELS = 420.0, 300.0, 150.0, 3  # the curves
 
 
 def curves_tab(n_series: int):
-    """The cumulative error curves (runs of eval): one 2D chart, drawn by :func:`fviz.record.writer.log_curves`,
+    """The cumulative error curves (runs of eval): one 2D chart, drawn by :func:`fviz.record.run_plots.log_curves`,
     its legend below."""
     import rerun.blueprint as rrb
 

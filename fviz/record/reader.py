@@ -431,13 +431,13 @@ def recording_blueprint(path: str | Path, active: str | None = None):
     return s.app_id, bp
 
 
-SUSPECT_BANNER = "**⚠ ground truth suspect**: "  # how a single pair's summary opens when it is (record.writer)
+SUSPECT_BANNER = "**⚠ ground truth suspect**: "  # how a single pair's summary opens when it is (record.pair_text)
 
 
 def suspect_notice_of(path: str | Path) -> str:
     """The overview's warning of a single pair's recording, from its summary's first line."""
     from fviz.diagnose import GT_SUSPECT_NOTE
-    from fviz.record.writer import suspect_notice
+    from fviz.record.pair_text import suspect_notice
 
     first = (text(path, L.SUMMARY) or [""])[0].split("\n", 1)[0]
     return suspect_notice([GT_SUSPECT_NOTE + first.removeprefix(SUSPECT_BANNER)] if first.startswith(SUSPECT_BANNER) else [])
@@ -445,7 +445,7 @@ def suspect_notice_of(path: str | Path) -> str:
 
 def series_ranges(path: str | Path, paths=None) -> dict[str, tuple | None]:
     """The y ranges of a run's plots (as the writer chose them) from the series the file holds."""
-    from fviz.record.writer import VALUE_PATHS, ranges_of_values
+    from fviz.record.run_plots import VALUE_PATHS, ranges_of_values
 
     paths = paths if paths is not None else entity_paths(path)
     values: dict[str, dict[str, list[float]]] = {}

@@ -2,7 +2,7 @@
 sizes in one stream behave in the viewer as an ``eval --full`` recording's pairs do.
 
 - Each pair logs every F's keypoints (their classes differ from pair to pair: no blueprint override, unlike a
-  single pair's file) and its arrows even when there are none (:func:`fviz.record.writer.log_pair`, ``many``).
+  single pair's file) and its arrows even when there are none (:func:`fviz.record.pair_recording.log_pair`, ``many``).
 - At each index, what another pair logged and this one did not (an F only some pairs have, an epipole's arrow,
   the reference lines, an estimator's error) is cleared (``rr.Clear`` at that index of ``pair``): at pair i only
   pair i's entities are live, whatever order the pairs come in.
@@ -55,7 +55,8 @@ class _Noting:
 
 def log_pair_into(rec, pair, result, lines: int, probe: int, probe_by: str | None, index: int, blueprint: bool) -> None:
     """One pair at ``pair`` = index of ``rec`` (see the module docstring), the other pairs' entities cleared there."""
-    from fviz.record.writer import log_pair_recording, suspect_notice
+    from fviz.record.pair_recording import log_pair_recording
+    from fviz.record.pair_text import suspect_notice
 
     state = _streams.setdefault(rec, _Logged())
     noting = _Noting(rec)

@@ -79,7 +79,8 @@ def log_training_step(rec: rr.RecordingStream | None, step: int, pairs: Sequence
 
     from fviz.geometry import clip_lines, epipoles, lines_in_a, lines_in_b, symmetric_epipolar_distance
     from fviz.record import layout as L
-    from fviz.record.writer import _epipole_marks, _log_marks, encode_jpeg
+    from fviz.record.marks import epipole_marks, log_marks
+    from fviz.record.writer import encode_jpeg
 
     rec = stream(rec)
     pairs = list(pairs)
@@ -117,12 +118,12 @@ def log_training_step(rec: rr.RecordingStream | None, step: int, pairs: Sequence
             lines = {"a": lines_in_a(M, x_b), "b": lines_in_b(M, x_a)}
             for v, e in zip(L.VIEWS, epipoles(M)):
                 seg, inside = clip_lines(lines[v], *sizes[v])
-                cross, label, arrow = _epipole_marks("ground truth" if who == L.GT else "network", e, sizes[v])
+                cross, label, arrow = epipole_marks("ground truth" if who == L.GT else "network", e, sizes[v])
                 n = int(inside.sum())
                 # one (n + 2, 2, 2) array, not a list of strips: Rerun converts it at once (4x faster)
-                _log_marks(rec, L.watch(name, f"{v}/{who}"), np.concatenate([seg[inside], cross]),
-                           np.tile(colors[who], (n + 2, 1)), np.r_[np.full(n, 0.6), 1.5, 1.5], [""] * n + [label] * 2,
-                           [] if arrow is None else [(*arrow, colors[who])], clear=who == L.NET, static=who == L.GT)
+                log_marks(rec, L.watch(name, f"{v}/{who}"), np.concatenate([seg[inside], cross]),
+                          np.tile(colors[who], (n + 2, 1)), np.r_[np.full(n, 0.6), 1.5, 1.5], [""] * n + [label] * 2,
+                          [] if arrow is None else [(*arrow, colors[who])], clear=who == L.NET, static=who == L.GT)
         sed = symmetric_epipolar_distance(F, x_a, x_b) if np.isfinite(F).all() and np.abs(F).max() > 0 else np.full(len(x_a), np.nan)
         rec.log(L.watch(name, "points"), rr.Points2D(L.match_points(x_a, x_b, p.size_a), radii=2.0,
                                                      class_ids=np.tile(L.residual_classes(sed), 2)))

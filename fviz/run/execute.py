@@ -376,7 +376,7 @@ def _preload_reports() -> None:
     """Import what the reports need in a thread while the pairs are evaluated (not after)."""
     from fviz.run.prestart import import_in_background
 
-    import_in_background("pyarrow.parquet", "rerun", "rerun.blueprint", "fviz.record.writer", "rich.console", "rich.table")
+    import_in_background("pyarrow.parquet", "rerun", "rerun.blueprint", "fviz.record.pair_recording", "rich.console", "rich.table")
 
 
 def _widened(config: RunConfig, out_dir: Path, resume: bool) -> RunConfig:

@@ -14,7 +14,7 @@ from fviz.run.store import ResultStore, load_payload, payload_ok, payload_path, 
 
 def _pair_text(rec: dict[str, Any], result: PairResult) -> str:
     """The per-pair Markdown: inspect's summary, or the reason a pair failed as a whole."""
-    from fviz.record.writer import pair_markdown
+    from fviz.record.pair_text import pair_markdown
 
     if rec.get("result") is None:
         return f"# {rec['key']}\n\n**pair error** (not evaluated): {rec['error']}\n"
@@ -28,7 +28,8 @@ def log_summary_pair(rec_stream, index: int, rec: dict[str, Any], result: PairRe
     import rerun as rr
 
     from fviz.record import layout as L
-    from fviz.record.writer import log_pair_text, log_series
+    from fviz.record.pair_text import log_pair_text
+    from fviz.record.run_plots import log_series
     from fviz.verdicts import pair_verdict
 
     rec_stream.set_time(L.TIMELINE, sequence=index)
@@ -62,15 +63,9 @@ def write_recording(path: Path, out_dir: Path, config: RunConfig, summary: str =
     import rerun as rr
 
     from fviz.record import layout as L
-    from fviz.record.writer import (
-        CURVE_METRICS,
-        RecordingWriter,
-        log_curves,
-        log_pair,
-        log_static,
-        ranges_of_values,
-        series_values,
-    )
+    from fviz.record.pair_recording import log_pair
+    from fviz.record.run_plots import CURVE_METRICS, log_curves, log_static, ranges_of_values, series_values
+    from fviz.record.writer import RecordingWriter
 
     source = config.selection.source() if config.full else None
     names = config.series_names()
