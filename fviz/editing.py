@@ -169,7 +169,7 @@ class EditSession:
 
         from fviz.record.stream_pairs import log_pair_into
 
-        log_pair_into(self.rec, self.pair, self.result, self.lines, self.probe, None, self.index, True)
+        log_pair_into(self.rec, self.pair, self.result, self.lines, self.probe, None, self.index, True, redraw=True)
         m, out = self.base.matches, np.flatnonzero(self.excluded)
         if len(out):
             labels = [f"match {i} (excluded)" for i in out] * 2

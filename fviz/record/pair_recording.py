@@ -35,12 +35,13 @@ def line_subset(result: PairResult, n: int, seed: int = 0) -> np.ndarray:
 
 def log_pair(rec, index: int, pair: Pair, result: PairResult, n_lines: int = 30, colors: Colors | None = None,
              probe_steps: int = 0, single_pair: bool = True, clear_reference: bool = False, motion: bool = True,
-             by: str | None = None, many: bool = False) -> None:
+             by: str | None = None, many: bool = False, images: bool = True) -> None:
     """Everything of one pair at ``pair`` = index (see :mod:`fviz.record.layout`): its verdict (judged on estimator
     ``by``, default every one), images, keypoints, lines, epipoles, the summary, the metrics table, and the
     comparison chart (``single_pair``) or the metric series and (``motion``) the motion tracks (runs). The reference
     lines when the notes say the ground truth is suspect; ``clear_reference`` (a run whose pairs carry that verdict:
-    triage) logs them empty otherwise. ``many``: one pair of many in a stream (as a run's: every F's matches, marks cleared)."""
+    triage) logs them empty otherwise. ``many``: one pair of many in a stream (as a run's: every F's matches, marks cleared).
+    ``images``: False when they are logged at this index already (a redraw after an edit of the matches)."""
     import rerun as rr
 
     from fviz.verdicts import verdict_of
@@ -52,7 +53,7 @@ def log_pair(rec, index: int, pair: Pair, result: PairResult, n_lines: int = 30,
     sizes = {"a": pair.size_a, "b": pair.size_b}
     unit = L.screen_unit(pair.size_a)
     rec.log("b", rr.Transform3D(translation=[*L.offset_b(pair.size_a), 0.0]))
-    for v, img in (("a", pair.image_a), ("b", pair.image_b)):
+    for v, img in (("a", pair.image_a), ("b", pair.image_b)) if images else ():
         rec.log(L.image(v), rr.EncodedImage(contents=encode_jpeg(img), media_type="image/jpeg"))
     log_pair_text(rec, result, pair_markdown(result, probe_steps))
     log_fundamentals(rec, result, pair.size_a, pair.size_b)
@@ -183,14 +184,17 @@ def pair_blueprint(pair: Pair, result: PairResult):
 
 
 def log_pair_recording(rec, pair: Pair, result: PairResult, n_lines: int = 30, probe_steps: int = PROBE_STEPS,
-                       probe_by: str | None = None, index: int = 0, many: bool = False) -> int:
+                       probe_by: str | None = None, index: int = 0, many: bool = False, redraw: bool = False) -> int:
     """Everything ``inspect pair`` records of one pair into ``rec`` at ``pair`` = index: legend, images,
-    lines, epipoles, summary, comparison, and the ``probe`` timeline (``many``: see :func:`log_pair`). -> the probe steps."""
+    lines, epipoles, summary, comparison, and the ``probe`` timeline (``many``: see :func:`log_pair`). ``redraw``: the
+    pair is logged there already (an edit of its matches): neither its images nor the static entities again.
+    -> the probe steps."""
     colors = L.estimator_colors(names_of(result))
     steps = len(probe_walk(pair, result, probe_by, probe_steps)[1])  # checks probe_by before logging
-    log_static(rec, names_of(result))
+    if not redraw:
+        log_static(rec, names_of(result))
     rec.set_time(L.PROBE_TIMELINE, sequence=0)
-    log_pair(rec, index, pair, result, n_lines, colors, steps, many=many)
+    log_pair(rec, index, pair, result, n_lines, colors, steps, many=many, images=not redraw)
     log_probe(rec, index, pair, result, probe_steps, probe_by, colors)
     return steps
 

@@ -53,14 +53,26 @@ class _Noting:
         return getattr(self.rec, name)
 
 
-def log_pair_into(rec, pair, result, lines: int, probe: int, probe_by: str | None, index: int, blueprint: bool) -> None:
-    """One pair at ``pair`` = index of ``rec`` (see the module docstring), the other pairs' entities cleared there."""
+def log_pair_into(rec, pair, result, lines: int, probe: int, probe_by: str | None, index: int, blueprint: bool,
+                  redraw: bool = False) -> None:
+    """One pair at ``pair`` = index of ``rec`` (see the module docstring), the other pairs' entities cleared there.
+    ``redraw``: the same pair again, its matches edited (:mod:`fviz.editing`): its images stay; what it drew before
+    and not now (a failed estimator's lines) is cleared."""
+    import rerun as rr
+
     from fviz.record.pair_recording import log_pair_recording
     from fviz.record.pair_text import suspect_notice
 
     state = _streams.setdefault(rec, _Logged())
     noting = _Noting(rec)
-    log_pair_recording(noting, pair, result, lines, probe, probe_by, index, many=True)
+    redraw = redraw and index in state.paths
+    log_pair_recording(noting, pair, result, lines, probe, probe_by, index, many=True, redraw=redraw)
+    if redraw:
+        kept = {L.image(v) for v in L.VIEWS} & state.paths[index]
+        for path in sorted(state.paths[index] - noting.paths - kept):
+            rec.set_time(L.TIMELINE, sequence=index)
+            rec.log(path, rr.Clear(recursive=False))
+        noting.paths |= kept
     state.paths[index], state.cleared[index] = noting.paths, set()
     state.sizes[index] = (tuple(pair.size_a), tuple(pair.size_b))
     state.names.update(dict.fromkeys(r.name for r in result.estimators))
