@@ -80,7 +80,7 @@ def reference_val(n: int, seed: int = 7):
 
 
 def ref_metrics(F_pred: np.ndarray, F_gt: np.ndarray) -> dict[str, float]:
-    from fviz.train.loop import epipolar_metrics, sample_points_on_geometry
+    from fviz.train.losses import epipolar_metrics, sample_points_on_geometry
 
     F_gt_t = torch.from_numpy(F_gt)
     xa, xb = sample_points_on_geometry(F_gt_t, REF_HW, 256, torch.Generator().manual_seed(0))

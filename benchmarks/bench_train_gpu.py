@@ -16,7 +16,8 @@ import torch
 
 from fviz.data.synthetic import SceneConfig, render_batch
 from fviz.models.model import FNet
-from fviz.train.loop import _amp_dtype, f_loss
+from fviz.train.losses import f_loss
+from fviz.train.runtime import autocast_dtype
 from fviz.train.recipe import load_recipe
 
 
@@ -51,7 +52,7 @@ def main() -> None:
     norm = recipe.model.variant.rsplit("-", 1)[-1]
     model = FNet.from_config(recipe.fnet_config()).to(device).train()
     opt = torch.optim.Adam(model.parameters(), lr=t.lr)
-    amp = _amp_dtype(t.amp, device)
+    amp = autocast_dtype(t.amp, device)
     cfg_small = SceneConfig(width=W, height=H, **recipe.data.synthetic)
     seed = iter(range(10**9))
 

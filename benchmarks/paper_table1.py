@@ -84,14 +84,14 @@ def train_missing(split: str, variants: list[str], out: Path, steps: int, overri
 def test_pairs(split: str, recipe, test_drives: list[str] | None):
     """The test stereo pairs of a split (forward direction): ``test_drives`` (honest) or the test part of the
     training drives (paper), each with the homographies (H_a, H_b) into the drive's unrectified cameras."""
-    from fviz.train.data import _open_named, frames_of, paper_split_frames, resolve_root
+    from fviz.train.splits import frames_of, open_named, paper_split_frames, resolve_root
 
     d = recipe.data
     roots = [str(resolve_root(r)) for r in [d.root, *d.roots] if r]
     from fviz.data.kitti import raw_cameras
 
     for name in test_drives or d.drives:
-        _, ds = _open_named(roots, name)
+        _, ds = open_named(roots, name)
         cams = raw_cameras(ds.calib_path)
         frames = frames_of(ds, 0) & frames_of(ds, 1)
         if not test_drives:
@@ -103,13 +103,14 @@ def test_pairs(split: str, recipe, test_drives: list[str] | None):
 def training_mean_f(split: str, recipe) -> np.ndarray:
     """The mean ground-truth F of the split's training pairs (no test label)."""
     from fviz.estimators.baselines import mean_fundamental
-    from fviz.train.data import _open_named, kitti_items, kitti_pair_id, resolve_root
+    from fviz.train.data import kitti_pair_id
+    from fviz.train.splits import kitti_items, open_named, resolve_root
 
     d = recipe.data
     roots = [str(resolve_root(r)) for r in [d.root, *d.roots] if r]
     Fs = []
     for name in d.drives:
-        _, ds = _open_named(roots, name)
+        _, ds = open_named(roots, name)
         for item in kitti_items(recipe, name, "train" if split == "paper" else None):
             if not item.reverse:
                 Fs.append(ds.ground_truth(kitti_pair_id(ds, item))[4])

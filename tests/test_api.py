@@ -209,7 +209,8 @@ def test_fviz_train_watches_validation_pairs(tmp_path, every, frames):
     import torch
 
     from fviz.train.checkpoint import read_checkpoint
-    from fviz.train.loop import train, watched_pairs
+    from fviz.train.curves import watched_pairs
+    from fviz.train.loop import train
     from fviz.train.recipe import Recipe
 
     recipe = Recipe.from_dict({
@@ -228,7 +229,7 @@ def test_fviz_train_watches_validation_pairs(tmp_path, every, frames):
     # the last frame is the trained network's F on those pairs
     from fviz.models.model import FNet
     from fviz.train.checkpoint import load_into
-    from fviz.train.data import make_datasets
+    from fviz.train.splits import make_datasets
 
     ckpt = read_checkpoint(res.checkpoint)
     model = FNet.from_config(recipe.fnet_config())

@@ -27,17 +27,8 @@ from fviz.geometry import (
 from fviz.models.heads import conditioning_matrix, euler_to_rotation, fundamental_from_params, inverse_intrinsics
 from fviz.models.heads import skew as skew_t
 from fviz.models.normalization import normalize_f
-from fviz.train.loop import (
-    _rank2,
-    _to_conditioned,
-    epipolar_metrics,
-    f_distance_t,
-    f_loss,
-    mean_target,
-    sample_points_on_geometry,
-    sed_loss,
-    straight_ahead_input_f,
-)
+from fviz.train.losses import _to_conditioned, epipolar_metrics, f_distance_t, f_loss, sample_points_on_geometry, sed_loss
+from fviz.train.validation import _rank2, mean_target, straight_ahead_input_f
 
 HW = (48, 160)  # (H, W) of a model input
 B, N = 6, 40

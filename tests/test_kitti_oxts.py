@@ -187,7 +187,8 @@ def test_cli_inspect_a_raw_temporal_pair(kitti_root, drive, tmp_path):
 
 
 def test_training_selects_raw_temporal_pairs_with_packets(kitti_root, tmp_path):
-    from fviz.train.data import KittiPairs, kitti_items
+    from fviz.train.data import KittiPairs
+    from fviz.train.splits import kitti_items
     from fviz.train.recipe import Recipe
 
     def items(drive_name):

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from fviz.errors import FvizError
-from fviz.train.data import kitti_items, make_datasets, paper_split_frames
+from fviz.train.splits import kitti_items, make_datasets, paper_split_frames
 from fviz.train.recipe import load_recipe
 
 PROJECT = Path(__file__).resolve().parents[1]

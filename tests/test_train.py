@@ -21,8 +21,11 @@ from fviz.train.checkpoint import (
     read_checkpoint,
     save_checkpoint,
 )
-from fviz.train.data import TensorPairs, epoch_batches, synthetic_seeds
-from fviz.train.loop import TrainingDiverged, f_loss, sample_points_on_geometry, train
+from fviz.train.data import TensorPairs
+from fviz.train.loop import TrainingDiverged, train
+from fviz.train.losses import f_loss, sample_points_on_geometry
+from fviz.train.runtime import epoch_batches
+from fviz.train.splits import synthetic_seeds
 from fviz.train.recipe import Recipe, load_recipe
 
 PROJECT = Path(__file__).resolve().parents[1]
@@ -274,7 +277,7 @@ def test_epoch_batches_are_deterministic_and_split_across_ranks():
 @pytest.mark.skipif(not _synthetic_available(), reason="fviz.data.synthetic not importable")
 def test_synthetic_dataset_targets_match_the_renderer():
     from fviz.data.synthetic import SceneConfig, render_batch
-    from fviz.train.data import make_datasets
+    from fviz.train.splits import make_datasets
 
     recipe = _recipe(Path("/nonexistent"), variant="single-base-abs")
     train_ds, _ = make_datasets(recipe)
@@ -292,7 +295,7 @@ def test_kitti_odometry_pairs_at_the_input_size(kitti_root):
     from fviz.data.kitti import open_dataset
     from fviz.geometry import normalize
     from fviz.models.predict import f_to_input
-    from fviz.train.data import make_datasets
+    from fviz.train.splits import make_datasets
 
     recipe = Recipe.from_dict({
         "model": {"variant": "siamese-rec-pos-fbn", **TINY_MODEL},

@@ -12,7 +12,8 @@ import pytest
 import torch
 from test_train import _recipe, _tiny_pairs
 
-from fviz.train.loop import NO_BETTER, beats, train, versus_constants
+from fviz.train.loop import train
+from fviz.train.validation import NO_BETTER, beats, versus_constants
 
 pytestmark = pytest.mark.usefixtures("torch_one_thread")
 
@@ -30,8 +31,8 @@ def test_validation_sets_the_network_beside_both_constants(tmp_path):
     from fviz.data.synthetic import intrinsics
     from fviz.estimators.baselines import mean_fundamental
     from fviz.geometry import fundamental_from_motion, symmetric_epipolar_distance
-    from fviz.train.data import epoch_batches
-    from fviz.train.loop import sample_points_on_geometry
+    from fviz.train.losses import sample_points_on_geometry
+    from fviz.train.runtime import epoch_batches
 
     recipe, (train_ds, val_ds), res = _untrained(tmp_path)
     m = res.metrics

@@ -11,15 +11,8 @@ from fviz.errors import FvizError
 from fviz.geometry import f_distance, symmetric_epipolar_distance
 from fviz.models.predict import flip_matrix
 from fviz.train.augment import Augment, augmented_pair
-from fviz.train.data import (
-    KittiItem,
-    KittiPairs,
-    filter_by_gt_agreement,
-    gt_agreement_px,
-    kitti_items,
-    load_kitti_pair,
-    make_datasets,
-)
+from fviz.train.data import KittiItem, KittiPairs, load_kitti_pair
+from fviz.train.splits import filter_by_gt_agreement, gt_agreement_px, kitti_items, make_datasets
 from fviz.train.recipe import Recipe
 
 EVERYTHING = Augment(swap=0.5, flip=0.5, crop=0.3, photometric=1.0)

@@ -1,5 +1,5 @@
 """The SED term of the training loss (train.sed_weight) and early stopping on a validation figure
-(train.keep_best): fviz/train/loop.py."""
+(train.keep_best): fviz/train/losses.py, fviz/train/loop.py."""
 
 from __future__ import annotations
 
@@ -12,7 +12,8 @@ import torch
 
 from fviz.geometry import fundamental_from_motion, normalize
 from fviz.train.data import TensorPairs
-from fviz.train.loop import sample_points_on_geometry, sed_loss, train
+from fviz.train.loop import train
+from fviz.train.losses import sample_points_on_geometry, sed_loss
 from fviz.train.recipe import Recipe
 from test_train_rec import K as K_TINY, TINY, H, W, forward_model
 

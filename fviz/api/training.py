@@ -1,5 +1,5 @@
 """Training from Python: :func:`train` runs a recipe (``fviz train`` is its client). Several GPUs: ``torchrun
---nproc_per_node N -m fviz train RECIPE`` (see :mod:`fviz.train.loop`)."""
+--nproc_per_node N -m fviz train RECIPE`` (see :mod:`fviz.train.runtime`)."""
 
 from __future__ import annotations
 
@@ -15,15 +15,18 @@ if TYPE_CHECKING:  # pragma: no cover
     from fviz.train.loop import TrainResult
 
 TRAIN_OUTPUTS = ("last.pt", "model.pt", "train.rrd", "heldout.json")
-_LOOP_NAMES = ("TrainingInterrupted", "VALIDATION_FIGURES", "versus_constants")
 
 
 def __getattr__(name: str):
     """The training loop's names the command line prints with, imported on first use (torch)."""
-    if name in _LOOP_NAMES:
-        from fviz.train import loop
+    if name == "TrainingInterrupted":
+        from fviz.train.loop import TrainingInterrupted
 
-        return getattr(loop, name)
+        return TrainingInterrupted
+    if name in ("VALIDATION_FIGURES", "versus_constants"):
+        from fviz.train import validation
+
+        return getattr(validation, name)
     raise AttributeError(name)
 
 
@@ -60,7 +63,8 @@ def train(recipe: str | os.PathLike, overrides: Sequence[str] = (), *, resume: b
     from fviz.atomic import owning, target
     from fviz.lock import locked
     from fviz.run.execute import remove_leftovers
-    from fviz.train.loop import TrainingInterrupted, check_fresh, output_dir
+    from fviz.train.checkpoint import check_fresh, output_dir
+    from fviz.train.loop import TrainingInterrupted
     from fviz.train.loop import train as run_training
     from fviz.train.recipe import load_recipe
 

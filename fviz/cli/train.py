@@ -1,6 +1,6 @@
 """``fviz train RECIPE [--set KEY=VALUE ...] [--resume]``: train one of the paper's networks.
 
-Several GPUs: ``torchrun --nproc_per_node N -m fviz train RECIPE`` (see :mod:`fviz.train.loop`).
+Several GPUs: ``torchrun --nproc_per_node N -m fviz train RECIPE`` (see :mod:`fviz.train.runtime`).
 
 The lead's CLI calls :func:`register` to add the command to its Typer app.  Errors are
 :class:`fviz.errors.FvizError` (one line; the CLI prints it and exits 2).  Ctrl-C or SIGTERM

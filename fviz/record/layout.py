@@ -672,7 +672,7 @@ TRAIN_SERIES = {
 
 
 # each validation's line: the network beside both constants ("the model is no better than the constant: ..."),
-# a TextLog on ``step`` (fviz.train.loop.versus_constants), shown under the curves
+# a TextLog on ``step`` (fviz.train.validation.versus_constants), shown under the curves
 TRAIN_VERDICT = "val/verdict"
 
 

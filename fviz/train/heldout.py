@@ -180,12 +180,13 @@ def fit_yaw_gain(model, pairs, gains=tuple(np.round(np.arange(1.0, 2.001, 0.05),
 
 def heldout_pairs(recipe, directions: bool = False):
     """The recipe's held-out pairs (``data.val_sequences``), forward direction only unless ``directions``."""
-    from fviz.train.data import _open_named, kitti_items, load_kitti_pair, resolve_root
+    from fviz.train.data import load_kitti_pair
+    from fviz.train.splits import kitti_items, open_named, resolve_root
 
     d = recipe.data
     roots = [str(resolve_root(r)) for r in [d.root, *d.roots] if r]
     for name in d.val_sequences:
-        _, ds = _open_named(roots, name)
+        _, ds = open_named(roots, name)
         for item in kitti_items(recipe, name):
             if item.reverse and not directions:
                 continue
@@ -198,13 +199,14 @@ def training_mean_f(recipe) -> dict[str, np.ndarray]:
     without a pair with F is left out."""
     from fviz.estimators.baselines import mean_fundamental
     from fviz.errors import FvizError
-    from fviz.train.data import _open_named, kitti_items, kitti_pair_id, resolve_root
+    from fviz.train.data import kitti_pair_id
+    from fviz.train.splits import kitti_items, open_named, resolve_root
 
     d = recipe.data
     roots = [str(resolve_root(r)) for r in [d.root, *d.roots] if r]
     truths: dict[str, list[np.ndarray]] = {}
     for name in [*d.sequences, *d.drives]:
-        _, ds = _open_named(roots, name)
+        _, ds = open_named(roots, name)
         for item in kitti_items(recipe, name):
             if item.reverse:
                 continue
@@ -265,7 +267,7 @@ def heldout_report(recipe, weights) -> dict[str, Any]:
 
 
 CONSTANT_NAMES = {"constant": "straight-ahead motion", "mean_f": "the training pairs' mean F"}
-NO_BETTER = "the model is no better than the constant"  # as fviz.train.loop.NO_BETTER
+NO_BETTER = "the model is no better than the constant"  # as fviz.train.validation.NO_BETTER
 
 
 def beats_constant(report: dict[str, Any], other: str, metric: str = "pose_err_deg") -> bool:

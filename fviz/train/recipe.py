@@ -98,7 +98,7 @@ class DataSection:
     cameras: list[int] = field(default_factory=list, metadata={"min": 0, "max": 3})  # cameras to pair (empty: cams)
     both_directions: bool = False  # temporal t -> t+k and t+k -> t; stereo a -> b and b -> a
     # "paper": the paper's split, random frames of the same sequences / drives, 80 % train, 10 % validation
-    # (10 % test, never loaded here: fviz.train.data.paper_split_frames); "": val_sequences or val_fraction
+    # (10 % test, never loaded here: fviz.train.splits.paper_split_frames); "": val_sequences or val_fraction
     split: str = field(default="", metadata=_choices("", "paper"))
     max_gt_sed_px: float = field(default=0.0, metadata={"min": 0.0})  # > 0: drop pairs whose GT disagrees with the images
     augment_swap: float = field(default=0.0, metadata={"min": 0.0, "max": 1.0})  # probability: a <-> b, F -> F^T
@@ -128,7 +128,7 @@ class TrainSection:
     t_norm_weight: float = field(default=0.01, metadata={"min": 0.0})
     # A geometric term beside the F loss: sed_weight * mean robust symmetric epipolar distance (model-input px,
     # Charbonnier with a 1 px knee) of the prediction on sed_points virtual correspondences of the target per pair
-    # (fviz.train.loop.sed_loss).  It weighs a pair's error as the images show it: a 1 deg yaw moves points
+    # (fviz.train.losses.sed_loss).  It weighs a pair's error as the images show it: a 1 deg yaw moves points
     # by f * 0.017 px, which L1 + L2 on a unit-norm F barely sees.  0: the paper's loss alone.
     sed_weight: float = field(default=0.0, metadata={"min": 0.0})
     sed_points: int = field(default=64, metadata={"min": 8})
