@@ -25,8 +25,13 @@ from fviz.geometry import clip_lines, lines_in_a, lines_in_b, symmetric_epipolar
 from fviz.record import layout as L
 from fviz.record.clickable import PairFs  # noqa: F401 (re-exported: the public name)
 
-SNAP_PX = 6.0  # a click this close to a match end (image pixels, KITTI; wider images scale it) picks that match
-RING_PX = 5.0  # the clicked point's ring and its partner's (KITTI; wider images scale it)
+# Sizes in screen px (times layout.screen_unit: the same on screen for a KITTI frame and a 3072-px photo)
+SNAP_PX = 6.0  # a click this close to a match end picks that match
+RING_PX = 7.0  # the clicked point's ring and its partner's
+LINE_PX, GT_LINE_PX, HALO_PX = 1.5, 2.0, 1.5  # the clicked lines' radii (the static ones: 0.9) and their dark halo's margin
+RING_LINE_PX = 1.3
+LABEL_OFF_PX = 26.0  # the partner's label: this far from it, on the side away from its lines
+HALO_COLOR, RING_COLOR = (0, 0, 0), (255, 255, 255)  # the click's rings: white on a dark halo (keypoints are filled dots)
 
 
 @dataclass
@@ -80,7 +85,7 @@ def click(fs: PairFs, view: str, point, match: int | None = None, snap: bool = T
     the nearest match end within SNAP_PX; the point's lines in the other image under every F."""
     point = np.asarray(point, float)[:2]
     if match is None and snap:
-        match = nearest_match(fs, view, point, SNAP_PX * fs.scale())
+        match = nearest_match(fs, view, point, SNAP_PX * L.screen_unit(fs.size_a))
     partner = None
     residuals = np.full(len(fs.names), np.nan)
     if match is not None:
@@ -110,7 +115,7 @@ def click_at(fs: PairFs, position, entity_path: str | None = None, instance_id: 
         found = locate(position, fs.size_a, fs.size_b)
         if found is None:
             return None
-        if picked is None or picked[0] != found[0] or np.linalg.norm(picked[2] - found[1]) > SNAP_PX * fs.scale():
+        if picked is None or picked[0] != found[0] or np.linalg.norm(picked[2] - found[1]) > SNAP_PX * L.screen_unit(fs.size_a):
             return click(fs, *found)
     return None if picked is None else click(fs, picked[0], picked[2], match=picked[1])
 
@@ -138,39 +143,72 @@ def click_label(c: Click) -> str:
 
 
 def click_marks(fs: PairFs, c: Click) -> dict[str, tuple[list, list, list, list]]:
-    """Per view: (strips, colours, radii, hover labels) to draw: in the clicked image the point's ring (yellow),
-    in the other the lines (each F's colour, the ground truth's thickest) and the partner's ring (yellow)."""
-    r, w = RING_PX * fs.scale(), fs.scale()
-    marks = {c.view: ([_ring(c.point, r)], [L.PROBE_COLOR], [1.2 * w], ["clicked" if c.match is None else f"match {c.match}"]),
-             c.other: ([], [], [], [])}
+    """Per view: (strips, colours, radii, hover labels) to draw: in the clicked image the point's ring, in the other
+    the lines (each F's colour, the ground truth's thickest) and the partner's ring. Rings white; every strip over a
+    dark halo of its own (:func:`halo_of`), so that the clicked lines stand apart from the static ones."""
+    u = L.screen_unit(fs.size_a)
+    name = "clicked" if c.match is None else f"match {c.match}"
+    marks = {c.view: ([_ring(c.point, RING_PX * u)], [RING_COLOR], [RING_LINE_PX * u], [name]), c.other: ([], [], [], [])}
     strips, colors, radii, labels = marks[c.other]
     for k, name in enumerate(c.names):
         if c.inside[k]:
             strips.append(c.segments[k])
             colors.append(fs.colors[name])
-            radii.append((1.6 if name == L.GT else 1.0) * w)
+            radii.append((GT_LINE_PX if name == L.GT else LINE_PX) * u)
             labels.append(name if c.match is None else f"{name}: {c.residuals[k]:.2f} px")
     if c.partner is not None:
-        strips.append(_ring(c.partner, r))
-        colors.append(L.PROBE_COLOR)
-        radii.append(1.2 * w)
+        strips.append(_ring(c.partner, RING_PX * u))
+        colors.append(RING_COLOR)
+        radii.append(RING_LINE_PX * u)
         labels.append(f"match {c.match}")
     return marks
 
 
+def halo_of(radii: list, unit: float) -> list:
+    """The dark halo's radii under strips of ``radii`` (HALO_PX screen px wider on each side)."""
+    return [r + HALO_PX * unit for r in radii]
+
+
+def label_anchor(fs: PairFs, c: Click, n_rows: int) -> tuple[str, np.ndarray]:
+    """(view, (2,) point in that image) where the click's label goes: beside the partner (or the clicked point)
+    LABEL_OFF_PX screen px away along the normal of its first line, on the side whose label box (drawn below the
+    anchor, n_rows text rows) lies farther from that line; kept inside the image."""
+    u = L.screen_unit(fs.size_a)
+    where, at = (c.other, c.partner) if c.partner is not None else (c.view, c.point)
+    w, h = fs.size(where)
+    box = np.array([0.0, 0.5 * 16.0 * n_rows * u])  # the box's centre below the anchor (~16 screen px a row)
+    lines = c.lines[np.asarray(c.inside, bool)] if where == c.other else np.zeros((0, 3))
+    normal = lines[0, :2] / max(np.linalg.norm(lines[0, :2]), 1e-12) if len(lines) else np.array([0.7071, -0.7071])
+    off = (RING_PX + LABEL_OFF_PX) * u
+    best, score = at, -np.inf
+    for side in (1.0, -1.0, None):
+        p = at + side * off * normal if side is not None else at + np.array([off, -off])
+        p = np.clip(p, [0.0, 0.0], [w - 1.0, h - 1.0 - 2 * box[1]])
+        centre = p + box
+        d = np.min(np.abs(lines[:, :2] @ centre + lines[:, 2]) / np.linalg.norm(lines[:, :2], axis=1)) if len(lines) else 0.0
+        d = min(d, np.linalg.norm(centre - at))
+        if d > score:
+            best, score = p, d
+    return where, best
+
+
 def log_click(rec, fs: PairFs, c: Click) -> None:
-    """Draw ``c`` at ``layout.click(v)`` of both views (the residual table shown beside the partner, or the
-    clicked pixel's coordinates beside it) and ``layout.CLICK_TEXT`` at the recording's current time,
-    replacing the previous click (same paths, same time: the later row wins)."""
+    """Draw ``c`` at ``layout.click(v)`` of both views over its halo (``layout.click_halo(v)``), the residual table
+    beside the partner off its lines (or the clicked pixel's coordinates beside it), and ``layout.CLICK_TEXT``, at the
+    recording's current time, replacing the previous click (same paths, same time: the later row wins)."""
     import rerun as rr
 
-    at = c.partner if c.partner is not None else c.point
-    where = c.other if c.partner is not None else c.view
+    u = L.screen_unit(fs.size_a)
+    text = click_label(c)
+    where, anchor = label_anchor(fs, c, text.count("\n") + 1)
     for view, (strips, colors, radii, labels) in click_marks(fs, c).items():
-        rec.log(L.click(view), rr.LineStrips2D(strips, colors=colors, radii=radii, labels=labels, show_labels=False))
+        rec.log(L.click_halo(view), rr.LineStrips2D(strips, colors=[HALO_COLOR] * len(strips), radii=halo_of(radii, u),
+                                                    draw_order=48.0))
+        rec.log(L.click(view), rr.LineStrips2D(strips, colors=colors, radii=radii, labels=labels, show_labels=False,
+                                               draw_order=49.0))
         if view == where:
-            rec.log(L.click_label(view), rr.Points2D([at + RING_PX * fs.scale()], radii=0.5, colors=[L.PROBE_COLOR],
-                                                     labels=[click_label(c)], show_labels=True))
+            rec.log(L.click_label(view), rr.Points2D([anchor], radii=0.5, colors=[RING_COLOR], labels=[text],
+                                                     show_labels=True, draw_order=50.0))
         else:
             rec.log(L.click_label(view), rr.Clear(recursive=False))
     rec.log(L.CLICK_TEXT, rr.TextDocument(click_text(c), media_type="text/markdown"))

@@ -18,6 +18,7 @@ from rerun.chunk import RrdReader
 
 import fviz
 from fviz.errors import FvizError
+from fviz.interactive import SNAP_PX
 from fviz.record import layout as L
 from fviz.record import reader as R
 
@@ -220,7 +221,7 @@ def test_each_index_has_its_own_fs_and_a_click_at_the_cursor_gets_that_pairs_lin
         assert rb.column(L.TIMELINE).to_pylist()[0] == i
         strips = rb.column("LineStrips2D:strips").to_pylist()[0]
         snapped = cp[i].x_a[np.argmin(np.linalg.norm(cp[i].x_a - x, axis=1))]
-        x = snapped if np.linalg.norm(snapped - x) <= 6.0 * cp[i].scale() else x
+        x = snapped if np.linalg.norm(snapped - x) <= SNAP_PX * L.screen_unit(cp[i].size_a) else x
         for name, F in _fs(results, i).items():
             assert any(_on_line(s, F, x) for s in strips if len(s) == 2), (i, name)
         other = _fs(results, (i + 1) % N_PAIRS)["8point"]  # and not another pair's

@@ -31,6 +31,3 @@ class PairFs:
 
     def size(self, view: str) -> tuple[int, int]:
         return self.size_a if view == "a" else self.size_b
-
-    def scale(self) -> float:
-        return max(1.0, self.size_a[0] / 1241.0)

@@ -410,6 +410,10 @@ def click_label(view: str) -> str:
     return f"{view}/click/label"
 
 
+def click_halo(view: str) -> str:
+    return f"{view}/click/halo"
+
+
 def probe(view: str) -> str:
     return f"{view}/probe"
 
