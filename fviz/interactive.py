@@ -5,7 +5,7 @@ as a selection (``SelectionChangeEvent``) whose item carries the entity, the ins
 (see ``docs/interactive.md``). This module turns such a position into what fviz draws:
 
 - :func:`locate`: a position in the root 2D frame (image a at the top, image b below it shifted by
-  ``layout.offset_b``) -> the image clicked and the pixel there (fviz convention: pixel centres at integers);
+  ``placement.offset_b``) -> the image clicked and the pixel there (fviz convention: pixel centres at integers);
 - :func:`click`: that pixel -> the nearest match end within ``SNAP_PX`` (then the match's partner and its SED
   under every F) and the point's epipolar line in the other image under every F (l_b = F x_a, l_a = F^T x_b),
   clipped to the image;
@@ -24,6 +24,7 @@ import numpy as np
 from fviz.geometry import clip_lines, lines_in_a, lines_in_b, symmetric_epipolar_distance
 from fviz.record import layout as L
 from fviz.record.clickable import PairFs  # noqa: F401 (re-exported: the public name)
+from fviz.record.placement import offset_b
 
 SNAP_PX = 6.0  # a click this close to a match end (image pixels, KITTI; wider images scale it) picks that match
 RING_PX = 5.0  # the clicked point's ring and its partner's (KITTI; wider images scale it)
@@ -61,7 +62,7 @@ def locate(position, size_a: tuple[int, int], size_b: tuple[int, int]) -> tuple[
     p = np.asarray(position, float)[:2]
     if _within(p, size_a):
         return "a", p
-    q = p - L.offset_b(size_a)
+    q = p - offset_b(size_a)
     return ("b", q) if _within(q, size_b) else None
 
 
@@ -189,7 +190,7 @@ class ClickSession:
     """One viewer's events -> clicks logged into ``rec`` (a RecordingStream with the viewed recording's
     application and recording id, whose bytes go to that viewer).
 
-    pairs: {pair index: PairFs} (:func:`fviz.record.reader.click_pairs`, or one pair: {0: ...});
+    pairs: {pair index: PairFs} (:func:`fviz.record.rebuild.click_pairs`, or one pair: {0: ...});
     stamps: other timelines the recording's pair data sits at 0 on (``probe`` for inspect), so that the click
     shows whichever timeline the viewer is on. The time cursor on ``pair`` (TimeUpdateEvent,
     TimelineChangeEvent) picks the pair; on another timeline the last pair seen (the only one, for inspect)."""
@@ -250,7 +251,8 @@ def session_for(path, rec=None):
     and recording id (the clicks land in the recording the viewer shows) unless ``rec`` is given."""
     import rerun as rr
 
-    from fviz.record.reader import click_pairs, store_ids, timelines
+    from fviz.record.reader import store_ids, timelines
+    from fviz.record.rebuild import click_pairs
 
     app_id, rec_id = store_ids(path)
     rec = rec or rr.RecordingStream(app_id, recording_id=rec_id, send_properties=False)

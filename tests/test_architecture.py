@@ -16,8 +16,8 @@ ROOT = Path(__file__).resolve().parents[1]
 MAX_LINES = 500
 # modules past MAX_LINES today, each to be split along its concerns (issue 41 §4); a module here may shrink, never grow
 OVERSIZED = {
-    "fviz/record/writer.py": 1118, "fviz/data/synthetic.py": 1051, "fviz/train/loop.py": 1052, "fviz/record/layout.py": 709,
-    "fviz/train/data.py": 513, "fviz/record/reader.py": 580,
+    "fviz/record/writer.py": 1118, "fviz/data/synthetic.py": 1051, "fviz/train/loop.py": 1052, "fviz/record/layout.py": 553,
+    "fviz/train/data.py": 513,
     "fviz/data/kitti.py": 572,
 }
 
