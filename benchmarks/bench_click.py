@@ -45,10 +45,10 @@ def selection(position, path="/a/image", instance=None) -> str:
 
 def positions(fs, n: int, seed: int = 0) -> list:
     """Half keypoints (of a and of b, in the root frame), half plain pixels of either image."""
-    from fviz.record import layout as L
+    from fviz.record.placement import offset_b
 
     rng = np.random.default_rng(seed)
-    off = L.offset_b(fs.size_a)
+    off = offset_b(fs.size_a)
     out = []
     for k in range(n):
         j = int(rng.integers(len(fs.x_a)))
@@ -103,7 +103,7 @@ def bench_browser(path: Path, clicks: int) -> None:
     from browser import Chromium, WebServer
     from test_interactive_web import click_answered, click_keypoint, open_page
 
-    from fviz.record.reader import click_pairs
+    from fviz.record.rebuild import click_pairs
 
     fs = click_pairs(path)[0]
     with WebServer(path) as server, Chromium(server.url) as b:

@@ -21,6 +21,7 @@ import numpy as np
 from fviz.errors import FvizError
 from fviz.geometry import symmetric_epipolar_distance
 from fviz.record import layout as L
+from fviz.record.placement import keypoint_radius, match_points
 
 EXCLUDED_COLOR = (150, 150, 150)
 SHOWN_METRICS = ("sed_median", "rot_err_deg", "trans_err_deg", "inlier_ratio")
@@ -173,8 +174,8 @@ class EditSession:
         m, out = self.base.matches, np.flatnonzero(self.excluded)
         if len(out):
             labels = [f"match {i} (excluded)" for i in out] * 2
-            self.rec.log(L.EXCLUDED, rr.Points2D(L.match_points(m.x_a[out], m.x_b[out], self.pair.size_a), colors=EXCLUDED_COLOR,
-                                                 radii=1.5 * L.keypoint_radius(self.pair.size_a), labels=labels,
+            self.rec.log(L.EXCLUDED, rr.Points2D(match_points(m.x_a[out], m.x_b[out], self.pair.size_a), colors=EXCLUDED_COLOR,
+                                                 radii=1.5 * keypoint_radius(self.pair.size_a), labels=labels,
                                                  show_labels=False, draw_order=45.0))
         else:
             self.rec.log(L.EXCLUDED, rr.Clear(recursive=False))

@@ -5,7 +5,7 @@ as a selection (``SelectionChangeEvent``) whose item carries the entity, the ins
 (see ``docs/interactive.md``). This module turns such a position into what fviz draws:
 
 - :func:`locate`: a position in the root 2D frame (image a at the top, image b below it shifted by
-  ``layout.offset_b``) -> the image clicked and the pixel there (fviz convention: pixel centres at integers);
+  ``placement.offset_b``) -> the image clicked and the pixel there (fviz convention: pixel centres at integers);
 - :func:`click`: that pixel -> the nearest match end within ``SNAP_PX`` (then the match's partner and its SED
   under every F) and the point's epipolar line in the other image under every F (l_b = F x_a, l_a = F^T x_b),
   clipped to the image;
@@ -23,7 +23,9 @@ import numpy as np
 
 from fviz.geometry import clip_lines, lines_in_a, lines_in_b, symmetric_epipolar_distance
 from fviz.record import layout as L
+from fviz.record.placement import screen_unit
 from fviz.record.clickable import PairFs  # noqa: F401 (re-exported: the public name)
+from fviz.record.placement import offset_b
 
 # Sizes in screen px (times layout.screen_unit: the same on screen for a KITTI frame and a 3072-px photo)
 SNAP_PX = 6.0  # a click this close to a match end picks that match
@@ -66,7 +68,7 @@ def locate(position, size_a: tuple[int, int], size_b: tuple[int, int]) -> tuple[
     p = np.asarray(position, float)[:2]
     if _within(p, size_a):
         return "a", p
-    q = p - L.offset_b(size_a)
+    q = p - offset_b(size_a)
     return ("b", q) if _within(q, size_b) else None
 
 
@@ -85,7 +87,7 @@ def click(fs: PairFs, view: str, point, match: int | None = None, snap: bool = T
     the nearest match end within SNAP_PX; the point's lines in the other image under every F."""
     point = np.asarray(point, float)[:2]
     if match is None and snap:
-        match = nearest_match(fs, view, point, SNAP_PX * L.screen_unit(fs.size_a))
+        match = nearest_match(fs, view, point, SNAP_PX * screen_unit(fs.size_a))
     partner = None
     residuals = np.full(len(fs.names), np.nan)
     if match is not None:
@@ -115,7 +117,7 @@ def click_at(fs: PairFs, position, entity_path: str | None = None, instance_id: 
         found = locate(position, fs.size_a, fs.size_b)
         if found is None:
             return None
-        if picked is None or picked[0] != found[0] or np.linalg.norm(picked[2] - found[1]) > SNAP_PX * L.screen_unit(fs.size_a):
+        if picked is None or picked[0] != found[0] or np.linalg.norm(picked[2] - found[1]) > SNAP_PX * screen_unit(fs.size_a):
             return click(fs, *found)
     return None if picked is None else click(fs, picked[0], picked[2], match=picked[1])
 
@@ -146,7 +148,7 @@ def click_marks(fs: PairFs, c: Click) -> dict[str, tuple[list, list, list, list]
     """Per view: (strips, colours, radii, hover labels) to draw: in the clicked image the point's ring, in the other
     the lines (each F's colour, the ground truth's thickest) and the partner's ring. Rings white; every strip over a
     dark halo of its own (:func:`halo_of`), so that the clicked lines stand apart from the static ones."""
-    u = L.screen_unit(fs.size_a)
+    u = screen_unit(fs.size_a)
     name = "clicked" if c.match is None else f"match {c.match}"
     marks = {c.view: ([_ring(c.point, RING_PX * u)], [RING_COLOR], [RING_LINE_PX * u], [name]), c.other: ([], [], [], [])}
     strips, colors, radii, labels = marks[c.other]
@@ -173,7 +175,7 @@ def label_anchor(fs: PairFs, c: Click, n_rows: int) -> tuple[str, np.ndarray]:
     """(view, (2,) point in that image) where the click's label goes: beside the partner (or the clicked point)
     LABEL_OFF_PX screen px away along the normal of its first line, on the side whose label box (drawn below the
     anchor, n_rows text rows) lies farther from that line; kept inside the image."""
-    u = L.screen_unit(fs.size_a)
+    u = screen_unit(fs.size_a)
     where, at = (c.other, c.partner) if c.partner is not None else (c.view, c.point)
     w, h = fs.size(where)
     box = np.array([0.0, 0.5 * 16.0 * n_rows * u])  # the box's centre below the anchor (~16 screen px a row)
@@ -198,7 +200,7 @@ def log_click(rec, fs: PairFs, c: Click) -> None:
     recording's current time, replacing the previous click (same paths, same time: the later row wins)."""
     import rerun as rr
 
-    u = L.screen_unit(fs.size_a)
+    u = screen_unit(fs.size_a)
     text = click_label(c)
     where, anchor = label_anchor(fs, c, text.count("\n") + 1)
     for view, (strips, colors, radii, labels) in click_marks(fs, c).items():
@@ -227,7 +229,7 @@ class ClickSession:
     """One viewer's events -> clicks logged into ``rec`` (a RecordingStream with the viewed recording's
     application and recording id, whose bytes go to that viewer).
 
-    pairs: {pair index: PairFs} (:func:`fviz.record.reader.click_pairs`, or one pair: {0: ...});
+    pairs: {pair index: PairFs} (:func:`fviz.record.rebuild.click_pairs`, or one pair: {0: ...});
     stamps: other timelines the recording's pair data sits at 0 on (``probe`` for inspect), so that the click
     shows whichever timeline the viewer is on. The time cursor on ``pair`` (TimeUpdateEvent,
     TimelineChangeEvent) picks the pair; on another timeline the last pair seen (the only one, for inspect)."""
@@ -288,7 +290,8 @@ def session_for(path, rec=None):
     and recording id (the clicks land in the recording the viewer shows) unless ``rec`` is given."""
     import rerun as rr
 
-    from fviz.record.reader import click_pairs, store_ids, timelines
+    from fviz.record.reader import store_ids, timelines
+    from fviz.record.rebuild import click_pairs
 
     app_id, rec_id = store_ids(path)
     rec = rec or rr.RecordingStream(app_id, recording_id=rec_id, send_properties=False)

@@ -104,11 +104,12 @@ class ClickViewer:
         """Click pixel (x, y) of image ``view`` ("a" or "b") of the pair at the time cursor, as the viewer does
         (snapped to a match end within reach) -> the :class:`fviz.interactive.Click` drawn, None off the image."""
         from fviz.record import layout as L
+        from fviz.record.placement import offset_b
 
         if view not in L.VIEWS:
             raise ValueError(f"view: 'a' or 'b', got {view!r}")
         fs = self.session.pairs.get(self.session.index)
-        shift = L.offset_b(fs.size_a) if fs is not None and view == "b" else 0.0
+        shift = offset_b(fs.size_a) if fs is not None and view == "b" else 0.0
         c = self.session.select(L.image(view), [*(np.asarray([x, y], float) + shift), 0.0])
         if c is not None:
             self.rec.flush()

@@ -102,7 +102,7 @@ from fviz.diagnose import (
 )
 from fviz.errors import FvizError
 from fviz.estimators.registry import AHEAD, is_oracle, is_run_baseline
-from fviz.evaluate import EVAL_THRESHOLD_PX
+from fviz.evaluate import EVAL_THRESHOLD_PX, metric_unit
 from fviz.findings import IGNORES_FRACTION, IGNORES_MIN_PAIRS, MIN_GT_SPREAD_DEG, Finding, estimator_findings  # noqa: F401 (re-exported)
 from fviz.record import layout as L
 from fviz.stats import number
@@ -375,7 +375,7 @@ def triage_markdown(config, ranked: list[Ranked], top: int, by: str, metric: str
 def rank_banner(r: Ranked, by: str, metric: str, rec: dict[str, Any]) -> str:
     """The head of a rank in triage.rrd: the pair's verdict judged on ``by`` (its record ``rec``: fviz.verdicts), one
     line first, so that the banner's height never hides it; then "rank 0: sed_median of 8point 3.34 px" and the tags."""
-    value = ERROR if r.failed else f"{r.value:.3g}{(' ' + L.metric_unit(metric)) if L.metric_unit(metric) else ''}"
+    value = ERROR if r.failed else f"{r.value:.3g}{(' ' + metric_unit(metric)) if metric_unit(metric) else ''}"
     return "\n".join([pair_verdict(rec, by).markdown(), "", f"**rank {r.rank}: {metric} of {by} {value}** (`{r.key}`, pair "
                       f"#{r.index}; ArrowRight: next worse-ranked pair)", ""] + [f"- **{t}**: {why}" for t, why in r.tags])
 

@@ -20,7 +20,10 @@ import fviz
 from fviz.errors import FvizError
 from fviz.interactive import SNAP_PX
 from fviz.record import layout as L
+from fviz.record.placement import screen_unit
 from fviz.record import reader as R
+from fviz.record.placement import images_extent
+from fviz.record.rebuild import click_pairs, recording_blueprint
 
 N_PAIRS = 4
 SMALL = 0.6  # pairs 1 and 3: the synthetic scene resized (another image size, the same geometry)
@@ -115,10 +118,10 @@ def test_the_page_opens_on_the_pair_timeline_and_frames_every_pair(logged, tmp_p
     image_views = _image_views(bp)
     assert image_views
     for p in pairs:
-        w, h = L.images_extent(p.size_a, p.size_b)
+        w, h = images_extent(p.size_a, p.size_b)
         for b in image_views:
             assert b["x_range"][1] >= w - 0.5 and b["y_range"][1] >= h - 0.5, (p.size_a, b)
-    app_id, rebuilt = R.recording_blueprint(path, active="mine")
+    app_id, rebuilt = recording_blueprint(path, active="mine")
     rebuilt.save(app_id, str(tmp_path / "tab.rbl"))
     again = _last_blueprint(tmp_path / "tab.rbl")
     assert again["timeline"] == [[L.TIMELINE]] and "class_ids" not in again  # no override: every F has its keypoints
@@ -195,7 +198,7 @@ def test_each_index_has_its_own_fs_and_a_click_at_the_cursor_gets_that_pairs_lin
     from fviz.web.server import ClickApp
 
     path, pairs, results = logged
-    cp = R.click_pairs(path)
+    cp = click_pairs(path)
     assert sorted(cp) == list(range(N_PAIRS))
     for i, p in enumerate(pairs):
         fs = cp[i]
@@ -221,7 +224,7 @@ def test_each_index_has_its_own_fs_and_a_click_at_the_cursor_gets_that_pairs_lin
         assert rb.column(L.TIMELINE).to_pylist()[0] == i
         strips = rb.column("LineStrips2D:strips").to_pylist()[0]
         snapped = cp[i].x_a[np.argmin(np.linalg.norm(cp[i].x_a - x, axis=1))]
-        x = snapped if np.linalg.norm(snapped - x) <= SNAP_PX * L.screen_unit(cp[i].size_a) else x
+        x = snapped if np.linalg.norm(snapped - x) <= SNAP_PX * screen_unit(cp[i].size_a) else x
         for name, F in _fs(results, i).items():
             assert any(_on_line(s, F, x) for s in strips if len(s) == 2), (i, name)
         other = _fs(results, (i + 1) % N_PAIRS)["8point"]  # and not another pair's
@@ -292,7 +295,7 @@ def test_the_page_at_the_last_pair_shows_that_pair_alone(logged, tmp_path):
     score, scale, (x, y, w, h) = find_image(to_gray(rgb), frame)
     print(f"pair {last}'s image a at ({x}, {y}) {w}x{h}, scale {scale:.2f}, score {score:.2f}")
     assert score > 0.5, f"the last pair's image a is not on the screen (score {score:.2f}); {shot.context}"
-    _, bottom = L.images_extent(pairs[last].size_a, pairs[last].size_b)
+    _, bottom = images_extent(pairs[last].size_a, pairs[last].size_b)
     images = rgb[y: y + int(bottom * scale), x: x + w]
     colors = L.estimator_colors(["gt", "8point", "mine"])
     white, mine = int(near(images, colors["gt"], 40).sum()), int(near(images, colors["mine"]).sum())

@@ -16,7 +16,7 @@ ROOT = Path(__file__).resolve().parents[1]
 MAX_LINES = 500
 # modules past MAX_LINES today, each to be split along its concerns (issue 41 §4); a module here may shrink, never grow
 OVERSIZED = {
-    "fviz/record/layout.py": 709, "fviz/record/reader.py": 580,
+    "fviz/record/layout.py": 550,
 }
 
 

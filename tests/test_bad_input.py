@@ -260,7 +260,7 @@ def test_two_checkpoints_of_one_file_name_keep_their_own_names(tmp_path):
     doc = json.loads(r.stdout)
     assert [e["name"] for e in doc["estimators"]] == ["gt", "deep-a-model", "deep-b-model", "8point"]
     from fviz.record import layout as L
-    from fviz.record.reader import read_recording
+    from fviz.record.summary import read_recording
 
     s = read_recording(out)
     assert {"deep-a-model", "deep-b-model"} <= set(s.estimators)

@@ -12,6 +12,7 @@ from rerun.chunk import RrdReader
 from fviz.geometry import epipoles, symmetric_epipolar_distance
 from fviz.record import layout as L
 from fviz.record.marks import LINE_PX, TAG_CHAR_PX
+from fviz.record.placement import offset_b, screen_unit
 
 ESTIMATORS = ("8point", "ransac", "magsac")
 
@@ -78,13 +79,13 @@ def test_recording_holds_jpeg_images_and_a_blueprint(inspected):
 
 def test_match_residuals_match_an_independent_computation(inspected):
     """One set of match positions (the ground truth's entity); each estimator's classes (its tab's override)."""
-    from fviz.record.reader import match_classes
+    from fviz.record.rebuild import match_classes
 
     doc, ent, out = inspected
     n = doc["n_matches"]
     points = np.array(col(ent[L.matches("gt")], "Points2D:positions"))
     assert points.shape == (2 * n, 2) and not any(L.matches(e["name"]) in ent for e in doc["estimators"][1:])
-    xa, xb = points[:n], points[n:] - L.offset_b(doc["pair"]["size_a"])  # b's ends sit below image a
+    xa, xb = points[:n], points[n:] - offset_b(doc["pair"]["size_a"])  # b's ends sit below image a
     classes_of = match_classes(out)
     assert set(classes_of) == {e["name"] for e in doc["estimators"]}
     for e in doc["estimators"]:
@@ -106,7 +107,7 @@ def lines_of(entity, size) -> np.ndarray:
     strips, labels, radii = col(entity, "LineStrips2D:strips"), col(entity, "LineStrips2D:labels"), col(entity, "LineStrips2D:radii")
     # the cross's two strips are thicker, the captions and names labelled
     return np.array([s for s, lab, r in zip(strips, labels, radii)
-                     if not lab and r == np.float32(LINE_PX * L.screen_unit(size))])
+                     if not lab and r == np.float32(LINE_PX * screen_unit(size))])
 
 
 def test_epipolar_lines_are_clipped_and_pass_through_the_epipole(inspected):
@@ -152,13 +153,13 @@ def test_every_epipole_is_named_in_the_overview(inspected):
         shapes = set()
         for i, e in enumerate(doc["estimators"]):
             mine = [np.array(s) for s, lab, r in zip(strips, labels, radii)
-                    if lab.startswith(f"{e['name']}: epipole at (") and r == np.float32(1.6 * L.screen_unit((w, h)))]
+                    if lab.startswith(f"{e['name']}: epipole at (") and r == np.float32(1.6 * screen_unit((w, h)))]
             assert mine
             shapes.add(tuple(np.round(np.concatenate(mine) - np.concatenate(mine).mean(0), 1).ravel()))
             pts = np.concatenate(mine)
             centre = (pts.min(0) + pts.max(0)) / 2
             # its name above it, its box kept inside the image when the glyph sits on the border
-            half = (len(e["name"]) + 2) * TAG_CHAR_PX * L.screen_unit((w, h)) / 2
+            half = (len(e["name"]) + 2) * TAG_CHAR_PX * screen_unit((w, h)) / 2
             assert tags[i][0] == pytest.approx(min(max(centre[0], half), w - half)) and tags[i][1] < centre[1]
             ep = epipoles(np.array(e["F"]))[k]
             p = ep[:2] / ep[2]
@@ -172,7 +173,7 @@ def test_every_epipole_is_named_in_the_overview(inspected):
                 assert d1 @ d2 > 0
         assert len(shapes) == len(doc["estimators"])  # no two F share a glyph
         halo = [r for r, lab in zip(radii, labels) if not lab]
-        assert halo and all(r > np.float32(1.6 * L.screen_unit((w, h))) for r in halo)
+        assert halo and all(r > np.float32(1.6 * screen_unit((w, h))) for r in halo)
 
 
 def test_stereo_epipole_at_infinity_is_marked_at_the_border(kitti_root, tmp_path):
@@ -205,7 +206,7 @@ def test_failed_estimator_is_reported_and_the_others_still_run(kitti_root, tmp_p
     ent = read_entities(out)
     assert "no convergence" in one(ent[L.error("boom")], "TextLog:text")
     assert L.est("a", "boom", "epilines") not in ent and L.est("a", "magsac", "epilines") in ent
-    from fviz.record.reader import match_classes
+    from fviz.record.rebuild import match_classes
 
     assert set(match_classes(out)) == {"gt", "magsac"}  # no tab classes for the estimator that failed
 

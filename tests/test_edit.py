@@ -18,6 +18,7 @@ import fviz
 from fviz.errors import FvizError
 from fviz.geometry import symmetric_epipolar_distance
 from fviz.record import layout as L
+from fviz.record.placement import offset_b
 
 pytestmark = pytest.mark.kitti
 
@@ -119,11 +120,11 @@ def test_an_edit_redraws_the_pair_and_marks_what_it_excluded(inspected, tmp_path
     n_out = int(ed.excluded.sum())
     assert xy.shape == (2 * n_out, 2)  # both ends of every excluded match, over both images
     assert np.allclose(xy[:n_out], base.matches.x_a[ed.excluded])
-    assert np.allclose(xy[n_out:] - L.offset_b(pair.size_a), base.matches.x_b[ed.excluded])
+    assert np.allclose(xy[n_out:] - offset_b(pair.size_a), base.matches.x_b[ed.excluded])
 
 
 def _selection(view: str, pair, x) -> str:
-    pos = np.asarray(x, float) + (L.offset_b(pair.size_a) if view == "b" else 0.0)
+    pos = np.asarray(x, float) + (offset_b(pair.size_a) if view == "b" else 0.0)
     return json.dumps({"type": "selection_change", "application_id": "fviz-inspect", "recording_id": "r",
                        "items": [{"type": "entity", "entity_path": f"/{L.image(view)}", "position": [*pos, 0.0],
                                   "view_name": "overview"}]})

@@ -14,6 +14,7 @@ from cli_util import assert_one_line_error, invoke, read_csv, run_fviz
 from rerun.chunk import RrdReader
 
 from fviz.record import layout as L
+from fviz.record.charts import CURVE_H
 from fviz.record import reader as R
 
 pytestmark = pytest.mark.kitti
@@ -147,7 +148,7 @@ def test_cumulative_curves_equal_what_metrics_csv_gives(run):
             expected = [sum(x < t for x in v) / len(v) for t in thresholds]
             assert recall[i].tolist() == pytest.approx(expected), (key, name)
             drawn = np.array(strips[i])[:, 1]  # y down: the top of the panel is 100 %
-            assert drawn.tolist() == pytest.approx((L.CURVE_H * (1 - np.array(expected))).tolist())
+            assert drawn.tolist() == pytest.approx((CURVE_H * (1 - np.array(expected))).tolist())
         assert thresholds[0] < 0.05 < thresholds[-1]  # FM-Bench's recall threshold inside every curve's range
 
 

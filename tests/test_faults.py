@@ -18,7 +18,8 @@ from pathlib import Path
 import pytest
 from cli_util import assert_one_line_error, read_csv, run_fviz
 
-from fviz.record.reader import open_rrd, read_recording
+from fviz.record.reader import open_rrd
+from fviz.record.summary import read_recording
 
 FAULTS = Path(__file__).parent / "faults"
 SMALL = ("--max-keypoints", "400", "--no-progress", "--workers", "1")

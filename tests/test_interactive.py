@@ -10,6 +10,7 @@ import pytest
 
 from fviz.interactive import PairFs, click, click_at, locate
 from fviz.record import layout as L
+from fviz.record.placement import offset_b
 
 SIZE_A, SIZE_B = (640, 200), (500, 300)
 
@@ -45,7 +46,7 @@ def _same_line(l1, l2):
 
 
 def test_locate_tells_the_images_apart_and_undoes_b_shift():
-    off = L.offset_b(SIZE_A)
+    off = offset_b(SIZE_A)
     assert locate([10, 20, 0], SIZE_A, SIZE_B)[0] == "a"
     view, p = locate([10 + 0, 20 + off[1]], SIZE_A, SIZE_B)
     assert view == "b" and np.allclose(p, [10, 20])
@@ -71,7 +72,7 @@ def test_a_pixel_lines_equal_opencv(pair, view):
 
 def test_a_click_near_a_keypoint_picks_its_match_and_its_residuals(pair):
     j = 7
-    off = L.offset_b(SIZE_A)
+    off = offset_b(SIZE_A)
     c = click_at(pair, pair.x_b[j] + off + [2.0, -1.5])  # root frame, 2.5 px from match 7's end in b
     assert c.view == "b" and c.match == j and np.allclose(c.point, pair.x_b[j]) and np.allclose(c.partner, pair.x_a[j])
     for k, F in enumerate(pair.F):
@@ -87,7 +88,7 @@ def test_a_selected_keypoint_is_taken_unless_the_position_says_otherwise(pair):
     """Rerun 0.41 reports the entity hovered in the previous frame with the position of the click: a stale
     instance far from the position is ignored."""
     n = len(pair.x_a)
-    off = L.offset_b(SIZE_A)
+    off = offset_b(SIZE_A)
     c = click_at(pair, None, "est/gt/matches", n + 3)  # b's end of match 3, no position
     assert (c.view, c.match) == ("b", 3) and np.allclose(c.point, pair.x_b[3])
     c = click_at(pair, pair.x_b[3] + off + [1.0, 0.0], "est/gt/matches", n + 3)
@@ -187,7 +188,7 @@ def test_notebook_click_draws_the_lines_in_the_other_image(evaluated, tmp_path):
     # a second click, on a plain pixel of b, replaces it: lines now in a, none left in b
     pb = np.array([200.0, 100.0])
     far = np.linalg.norm(m.x_b - pb, axis=1).min() > 10
-    c2 = v.handle(_selection("/b/image", [*(pb + L.offset_b(pair.size_a)), 0.0]))
+    c2 = v.handle(_selection("/b/image", [*(pb + offset_b(pair.size_a)), 0.0]))
     assert c2.view == "b" and (c2.match is None) == far
     sent = _sent_chunks(v.viewer, tmp_path)
     last_b = sent["b/click"][-1].column("LineStrips2D:strips").to_pylist()[-1]
@@ -299,11 +300,11 @@ def test_the_notebook_path_runs_in_a_real_kernel(kitti_root, tmp_path):
     code = f"""
 import json, numpy as np
 import fviz.notebook
-from fviz.record import layout as L
+from fviz.record.placement import offset_b
 v = fviz.notebook.open({str(rec)!r})
 v
 fs = v.session.pairs[0]
-p = fs.x_b[10] + L.offset_b(fs.size_a)
+p = fs.x_b[10] + offset_b(fs.size_a)
 msg = json.dumps({{"type": "selection_change", "application_id": "a", "recording_id": "r",
                   "items": [{{"type": "entity", "entity_path": "/b/image", "position": [float(p[0]), float(p[1]), None]}}]}})
 v.viewer._viewer._handle_custom_msg(msg, [])  # what ipywidgets does with the frontend's message

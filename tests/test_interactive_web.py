@@ -17,6 +17,7 @@ from browser import Chromium, WebServer, decode_png, run_fviz
 from test_web_viewer import budget, find_image, near, to_gray, viewer_rendered
 
 from fviz.record import layout as L
+from fviz.record.placement import offset_b
 
 pytestmark = [pytest.mark.browser, pytest.mark.kitti, pytest.mark.slow]
 
@@ -54,7 +55,7 @@ class Page:
 
     def screen(self, view: str, p) -> np.ndarray:
         """Pixel ``p`` (..., 2) of image ``view`` -> screen (..., 2)."""
-        q = np.asarray(p, float) + (0.0 if view == "a" else L.offset_b(self.size_a))
+        q = np.asarray(p, float) + (0.0 if view == "a" else offset_b(self.size_a))
         return np.array([self.x, self.y]) + (q + 0.5) * self.scale
 
 
@@ -109,7 +110,7 @@ def line_pixels(rgb: np.ndarray, page: Page, view: str, line: np.ndarray, color,
     x0, y0, x1, y1 = max(int(x0), 0), max(int(y0), 0), min(int(np.ceil(x1)) + 1, w), min(int(np.ceil(y1)) + 1, h)
     yy, xx = np.mgrid[y0:y1, x0:x1].astype(np.float64)
     # screen -> image pixels
-    off = 0.0 if view == "a" else L.offset_b(page.size_a)[1]
+    off = 0.0 if view == "a" else offset_b(page.size_a)[1]
     u = (xx - page.x) / page.scale - 0.5
     v = (yy - page.y) / page.scale - 0.5 - off
     inside = (u >= 0) & (u <= size[0] - 1) & (v >= 0) & (v <= size[1] - 1)
@@ -146,7 +147,7 @@ def click_keypoint(b: Chromium, page: Page, j: int, fs) -> dict:
 
 
 def test_a_click_on_a_keypoint_draws_its_lines_in_the_other_image_and_a_second_click_replaces_them(inspected, tmp_path):
-    from fviz.record.reader import click_pairs
+    from fviz.record.rebuild import click_pairs
 
     path, Fs = inspected
     fs = click_pairs(path)[0]

@@ -171,7 +171,8 @@ def test_a_corrupt_packet_is_a_one_line_error_naming_file_and_line(drive_copy, t
 
 
 def test_cli_inspect_a_raw_temporal_pair(kitti_root, drive, tmp_path):
-    from fviz.record.reader import image_size, match_classes
+    from fviz.record.reader import image_size
+    from fviz.record.rebuild import match_classes
 
     out = tmp_path / "x.rrd"
     proc = run_fviz("inspect", "pair", "--kitti-root", kitti_root, "--drive", DRIVE, "--pair", "temporal", "--frame", "3",

@@ -15,6 +15,8 @@ from cli_util import run_fviz
 
 from fviz.record import layout as L
 from fviz.record import reader as R
+from fviz.record.placement import offset_b, screen_unit
+from fviz.record.rebuild import match_classes
 
 pytestmark = pytest.mark.kitti
 ESTIMATORS = ("8point", "ransac", "magsac")  # inspect's defaults, in order
@@ -118,7 +120,7 @@ def test_one_colour_per_estimator_everywhere(inspected, eval_run):
     # comparison bars: one per F per metric, in estimator order
     bar_colors = [rgb(c) for c in rows(path, L.COMPARE, "LineStrips2D:colors")[0]]
     assert bar_colors[: len(names)] == [expected[n] for n in names]
-    unit = np.float32(L.screen_unit(doc["pair"]["size_a"]))  # image px per screen px: line widths are in screen terms
+    unit = np.float32(screen_unit(doc["pair"]["size_a"]))  # image px per screen px: line widths are in screen terms
     for v in L.VIEWS:
         epipole_labels = rows(path, L.epipoles(v), "LineStrips2D:labels")[0]
         epipole_colors = rows(path, L.epipoles(v), "LineStrips2D:colors")[0]
@@ -159,10 +161,10 @@ def test_keypoint_classes_are_the_residual_bin_and_inlier_flag(inspected):
     path, doc = inspected
     n = doc["n_matches"]
     points = np.array(rows(path, L.matches("gt"), "Points2D:positions")[0])
-    xa, xb = points[:n], points[n:] - L.offset_b(doc["pair"]["size_a"])
+    xa, xb = points[:n], points[n:] - offset_b(doc["pair"]["size_a"])
     for name in ("gt", "ransac"):
         F = F_of(doc, name)
-        both = np.array(R.match_classes(path)[name])
+        both = np.array(match_classes(path)[name])
         classes = both[:n]
         assert len(xa) == len(xb) == len(classes) == n and np.array_equal(both[n:], classes)
         residual = np.array([sed(F, p, q) for p, q in zip(xa, xb)])
@@ -213,12 +215,12 @@ def test_probe_walks_the_most_disputed_matches_with_every_line(inspected):
         # the ring and the join between a and b: b's points are drawn below image a
         join = np.array(next(s for s, lab in zip(sa, la) if lab.startswith("match ") and len(s) == 2))
         np.testing.assert_allclose(join[0], xa, atol=1e-3)
-        np.testing.assert_allclose(join[1], xb + L.offset_b(doc["pair"]["size_a"]), atol=1e-3)
+        np.testing.assert_allclose(join[1], xb + offset_b(doc["pair"]["size_a"]), atol=1e-3)
     assert all(a >= b - 1e-3 for a, b in zip(worst, worst[1:])), worst  # most disputed first
     assert worst[0] > 3.0  # 8-point misses these matches by pixels
     ends = np.array([np.array(s[-1])[:-1].mean(0) for s in steps_b])  # b's rings, step by step
     gaps = np.linalg.norm(ends[:, None] - ends[None], axis=-1) + np.eye(len(ends)) * 1e9
-    assert gaps.min() >= 20.0 * L.screen_unit(doc["pair"]["size_a"]) - 1e-3, gaps.min()  # no near-duplicate
+    assert gaps.min() >= 20.0 * screen_unit(doc["pair"]["size_a"]) - 1e-3, gaps.min()  # no near-duplicate
 
 
 def test_probe_by_one_estimator_and_probe_off(kitti_root, tmp_path):

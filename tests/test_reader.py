@@ -11,6 +11,7 @@ from browser import inspect_recording
 from fviz.errors import FvizError
 from fviz.record import layout as L
 from fviz.record import reader as R
+from fviz.record.summary import read_recording
 
 pytestmark = pytest.mark.kitti
 
@@ -30,7 +31,7 @@ def _same(a, b) -> bool:
 
 def test_read_inspect_recording(inspected):
     path, doc = inspected
-    s = R.read_recording(path)
+    s = read_recording(path)
     assert s.app_id == "fviz-inspect"
     assert s.timeline == "pair" and s.timelines == ("pair", "probe")
     assert s.has_blueprint
@@ -95,7 +96,7 @@ def test_triage_like_recording(odometry, tmp_path):
             results[rank] = (pair, res)
             w.rec.set_time("rank", sequence=rank)
             log_pair(w.rec, frame, pair, res, single_pair=False)
-    s = R.read_recording(path)
+    s = read_recording(path)
     assert s.app_id == "fviz-triage" and not s.has_blueprint
     assert s.timeline == "rank" and set(s.timelines) == {"rank", "pair"}
     assert s.estimators == tuple(names)
@@ -110,10 +111,10 @@ def test_triage_like_recording(odometry, tmp_path):
         assert it.estimators() == names
     assert s.to_dict()["items"][0]["metrics"]["epi_abs"]["broken"] is None
     # the same file read on its other timeline: items are pairs 2 and 5
-    by_pair = R.read_recording(path, timeline="pair")
+    by_pair = read_recording(path, timeline="pair")
     assert [(it.index, it.times) for it in by_pair.items] == [(2, {"rank": 1}), (5, {"rank": 0})]
     with pytest.raises(FvizError, match="no timeline 'frame'"):
-        R.read_recording(path, timeline="frame")
+        read_recording(path, timeline="frame")
 
 
 def _written(path, index: bool):
@@ -164,7 +165,7 @@ def test_bad_files(inspected, tmp_path, case):
         _without_end_mark(bad)  # would read as a silently short file
     elif case == "no-footer":
         bad.write_bytes(run[:-1])  # a run's file, every frame intact, the footer cut: would read as a short file
-    for fn in (R.read_recording, R.entity_paths, R.open_rrd):
+    for fn in (read_recording, R.entity_paths, R.open_rrd):
         with pytest.raises(FvizError) as err:
             fn(bad)
         msg = str(err.value)
@@ -176,6 +177,6 @@ def test_bad_files(inspected, tmp_path, case):
 @pytest.mark.parametrize("index", [True, False])
 def test_complete_files_with_or_without_footer(tmp_path, index):
     path = _written(tmp_path / "ok.rrd", index=index)
-    assert R.read_recording(path).items[0].name == "p"
+    assert read_recording(path).items[0].name == "p"
     assert L.END in R.entity_paths(path) or index
 

@@ -12,6 +12,7 @@ from cli_util import run_fviz
 
 from fviz.record import layout as L
 from fviz.record import reader as R
+from fviz.record.placement import offset_b
 
 pytestmark = pytest.mark.kitti
 
@@ -71,7 +72,7 @@ def test_reference_lines_are_the_best_robust_fs_labelled_as_the_reference(inspec
     assert {float(r) for r, lab in zip(radii, labels) if not lab} == {L.REFERENCE_RADIUS} and L.REFERENCE_RADIUS > 0.9
     rgb = {((c >> 24) & 255, (c >> 16) & 255, (c >> 8) & 255) for c, lab in zip(colors, labels) if not lab}
     assert rgb == {L.estimator_colors(list(rows))[best]}
-    (_, h), offset = doc["pair"]["size_a"], L.offset_b(tuple(doc["pair"]["size_a"]))
+    (_, h), offset = doc["pair"]["size_a"], offset_b(tuple(doc["pair"]["size_a"]))
     in_b = lines[..., 1].min(axis=1) > h
     a, b = lines[~in_b], lines[in_b] - offset
     assert len(a) == len(b) and 5 <= len(a) <= L.REFERENCE_LINES, (len(a), len(b))

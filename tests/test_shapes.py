@@ -17,6 +17,7 @@ from sources_util import FAST
 from fviz.record import layout as L
 from fviz.record import reader as R
 from fviz.record.marks import TAG_CHAR_PX, TAG_ROW_PX
+from fviz.record.placement import FOOTER_PX, offset_b, screen_unit, side_by_side
 
 SHAPES = ("3072x2048", "portrait", "4:3")
 
@@ -42,7 +43,7 @@ def shaped(tmp_path_factory):
 
 def caption_and_scale(path, name: str):
     """(the estimator's numbers' anchor, the residual scale's segments) below the images, in the root frame."""
-    shift = L.offset_b(R.image_size(path, "a"))
+    shift = offset_b(R.image_size(path, "a"))
     strips = R.column(path, L.est("b", name, "epilines"), "LineStrips2D:strips")[0]
     labels = R.column(path, L.est("b", name, "epilines"), "LineStrips2D:labels")[0]
     caption = next(np.array(s[0]) for s, lab in zip(strips, labels) if lab.startswith(f"{name}: SED"))
@@ -56,16 +57,16 @@ def caption_and_scale(path, name: str):
 def test_a_pair_of_any_shape_sits_side_by_side_with_its_footer_in_view(shaped, shape):
     path, doc = shaped[shape]
     size = tuple(doc["pair"]["size_a"])
-    assert L.side_by_side(size) and not L.side_by_side((1241, 376))
-    shift = L.offset_b(size)
+    assert side_by_side(size) and not side_by_side((1241, 376))
+    shift = offset_b(size)
     assert shift[1] == 0 and shift[0] > size[0]  # b right of a, apart
     w, h = size[0] + shift[0], size[1]
-    unit = L.screen_unit(size)
+    unit = screen_unit(size)
     caption, scale = caption_and_scale(path, "ransac")
-    assert w / 2 - 1 < caption[0] < w / 2 + 1 and h < caption[1] < h + L.FOOTER_PX * unit  # centred under both
+    assert w / 2 - 1 < caption[0] < w / 2 + 1 and h < caption[1] < h + FOOTER_PX * unit  # centred under both
     ys = {float(s[0][1]) for s in scale}
     xs = np.array([p[0] for s in scale for p in s])
-    assert len(scale) == L.RESIDUAL_CLASSES and len(ys) == 1 and caption[1] < ys.pop() < h + L.FOOTER_PX * unit
+    assert len(scale) == L.RESIDUAL_CLASSES and len(ys) == 1 and caption[1] < ys.pop() < h + FOOTER_PX * unit
     # the scale is as wide on screen whatever the image size: 28 screen px per bin
     assert (xs.max() - xs.min()) / unit == pytest.approx(28.0 * L.RESIDUAL_CLASSES, rel=1e-3)
     assert xs.min() > 0 and xs.max() < w
@@ -81,7 +82,7 @@ def label_boxes(path, view: str, unit: float):
 
 def test_epipole_labels_never_overlap(shaped):
     for shape, (path, doc) in shaped.items():
-        unit = L.screen_unit(tuple(doc["pair"]["size_a"]))
+        unit = screen_unit(tuple(doc["pair"]["size_a"]))
         for v in L.VIEWS:
             boxes = label_boxes(path, v, unit)
             assert len(boxes) == len(doc["estimators"]), (shape, v, boxes)
@@ -124,14 +125,14 @@ def test_probe_orders_by_disagreement_never_by_a_baseline(shaped):
     assert all(p >= q - 1e-3 for p, q in zip(spread, spread[1:])), spread
     ahead = [sed(Fs["ahead"], a, b) for a, b in zip(xa, xb)]
     assert ahead != sorted(ahead, reverse=True)  # not ahead's order
-    unit = L.screen_unit(tuple(doc["pair"]["size_a"]))
+    unit = screen_unit(tuple(doc["pair"]["size_a"]))
     for ends in (xa, xb):
         gaps = np.linalg.norm(ends[:, None] - ends[None], axis=-1) + 1e9 * np.eye(len(ends))
         assert gaps.min() >= 20.0 * unit - 1e-3
     zoom_a = np.array(R.column(path, L.probe_zoom("a"), "Transform3D:translation", L.PROBE_TIMELINE))[:, 0, :2]
     zoom_b = np.array(R.column(path, L.probe_zoom("b"), "Transform3D:translation", L.PROBE_TIMELINE))[:, 0, :2]
     np.testing.assert_allclose(zoom_a, xa, atol=1e-3)
-    np.testing.assert_allclose(zoom_b, xb + L.offset_b(tuple(doc["pair"]["size_a"])), atol=1e-3)
+    np.testing.assert_allclose(zoom_b, xb + offset_b(tuple(doc["pair"]["size_a"])), atol=1e-3)
     tabs = R.blueprint_tabs(path)
     assert tabs["probe"].count("+ a/image") == 3  # the whole images and the two zoomed views
 
@@ -142,7 +143,7 @@ def test_gt_matches_are_drawn_and_walked_mislabel_first(shaped, tmp_path):
     path, doc = shaped["4:3"]
     n = doc["n_matches"]
     pts = np.array(R.column(path, L.matches("gt"), "Points2D:positions")[0])
-    xa, xb = pts[:n], pts[n:] - L.offset_b(tuple(doc["pair"]["size_a"]))
+    xa, xb = pts[:n], pts[n:] - offset_b(tuple(doc["pair"]["size_a"]))
     F = np.array(next(e["F"] for e in doc["estimators"] if e["name"] == "gt"))
     good = [i for i in range(n) if sed(F, xa[i], xb[i]) < 0.5]
     assert len(good) > 100

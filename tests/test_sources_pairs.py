@@ -8,7 +8,8 @@ import pytest
 from cli_util import assert_one_line_error, run_fviz
 from sources_util import FAST, GT_METRICS, closed_form_F, fountain, same_up_to_sign, strecha_camera, strecha_projection
 
-from fviz.record.reader import blueprint_tabs, read_recording, text
+from fviz.record.reader import blueprint_tabs, text
+from fviz.record.summary import read_recording
 from fviz.record import layout as L
 
 

@@ -25,6 +25,8 @@ import pytest
 from browser import Chromium, WebServer, eval_run, inspect_recording, require_chromium, run_fviz
 
 from fviz.record import layout as L
+from fviz.record.placement import offset_b
+from fviz.record.plots import log_values
 
 pytestmark = [pytest.mark.browser, pytest.mark.kitti, pytest.mark.slow]
 
@@ -286,7 +288,7 @@ def assert_keypoints_in_classes_of(name: str, recording, shot: "Shot", crops: di
     """The keypoints drawn are coloured by ``name``'s residuals: the balance of near-the-line and mid-way
     colours on screen leans the way the recorded classes of ``name`` do (the ground truth and the robust
     estimators lean opposite ways on this pair, so showing another's classes fails)."""
-    from fviz.record.reader import match_classes
+    from fviz.record.rebuild import match_classes
 
     near_line, mid = class_sides(match_classes(recording)[name])
     assert max(near_line, mid) > 3 * min(near_line, mid), f"{name}: {near_line} vs {mid} matches: not a telling pair"
@@ -500,13 +502,13 @@ def test_a_failing_estimator_is_drawn_inside_the_error_plots(turn_run, tmp_path)
     """eval.rrd's metrics on a turn: the errors on log10 axes hold the failing estimator (ahead, ~30x worse) and the
     best ones in one range: in the median SED plot ahead's series is drawn, well above MAGSAC's and RANSAC's, which
     are drawn too; the plot's range holds every value the recording has."""
-    from fviz.record import reader as R
+    from fviz.record import rebuild as R
 
     rrd = turn_run / "eval.rrd"
     sed = {n: np.nanmedian(v) for n, v in R.series_values(rrd, L.metric("sed_median")).items()}
     assert sed["ahead"] > 10 * max(sed["ransac"], sed["magsac"]), f"not a failing estimator: {sed}"
     lo, hi, cut = R.series_ranges(rrd)[L.metric_plot("sed_median")]
-    logs = np.concatenate([L.log_values(v) for v in R.series_values(rrd, L.metric("sed_median")).values()])
+    logs = np.concatenate([log_values(v) for v in R.series_values(rrd, L.metric("sed_median")).values()])
     assert not cut and lo < np.nanmin(logs) and np.nanmax(logs) < hi, (lo, hi, cut)
     shot = Shot(rrd, tmp_path / "turn-metrics.png", "--tab", "metrics")
     box = min(plot_boxes(shot.rgb), key=lambda b: b[0] + b[1])  # the top-left plot: median SED
@@ -618,7 +620,7 @@ def test_suspect_ground_truth_overview_draws_the_reference(kitti_root, odometry,
     boxes = shot.frames(frames, (0.0, 0.72))
     strips = [np.asarray(s, float) for s in R.column(rrd, L.REFERENCE, "LineStrips2D:strips")[0]]
     labels = R.column(rrd, L.REFERENCE, "LineStrips2D:labels")[0]
-    shift = L.offset_b(pair.size_a)
+    shift = offset_b(pair.size_a)
     for v, box in boxes.items():
         crop, drawn = overlay(shot.rgb, frames[v], box)
         ref, other = (int((near(crop, COLORS[n]) & drawn).sum()) for n in ("magsac", "ransac"))

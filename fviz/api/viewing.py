@@ -46,7 +46,7 @@ def tab_blueprint(path: Path, tab: str) -> Path:
     """A blueprint file that opens ``path`` on tab ``tab`` (one-line error naming the tabs there are)."""
     import tempfile
 
-    from fviz.record.reader import recording_blueprint
+    from fviz.record.rebuild import recording_blueprint
 
     app_id, bp = recording_blueprint(path, active=tab)
     out = Path(tempfile.mkdtemp(prefix="fviz-open-")) / f"{tab}.rbl"  # read by the viewer when it starts
@@ -119,6 +119,6 @@ def open_recording(path: str | Path, *, web: bool = False, web_static: bool = Fa
 def read_recording(path: str | Path):
     """The pairs and metrics stored in a recording (``fviz summary``): ``items`` (one per pair: ``name``, ``metrics``
     by estimator, ``errors``), ``metrics``, ``timeline``, ``app_id``; ``to_dict()`` is ``fviz summary --json``."""
-    from fviz.record.reader import read_recording as read
+    from fviz.record.summary import read_recording as read
 
     return read(Path(path))

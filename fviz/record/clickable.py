@@ -1,4 +1,4 @@
-"""What a click needs of one pair, read from a recording (:func:`fviz.record.reader.click_pairs`) or made from a result
+"""What a click needs of one pair, read from a recording (:func:`fviz.record.rebuild.click_pairs`) or made from a result
 (:mod:`fviz.interactive`, which draws the click): the record layer's, so that reading a recording needs nothing above it."""
 
 from __future__ import annotations

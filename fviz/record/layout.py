@@ -75,12 +75,10 @@ Training (``fviz train``'s train.rrd, :func:`fviz.log_training_step`; ``{k}`` na
                                 ``offset_b``), coloured by the network's residual (SED, px; the residual scale)
     watch/{k}/sed_px            Scalars on ``step``: the network's median SED on the correspondences (px)
 
-Image b is drawn below image a (stacked) or right of it (side by side), whichever shows a pair of this
-shape larger (:func:`side_by_side`: KITTI's 3.3:1 frames stack; 4:3, 3:2 and portrait photos sit side by side):
-``b`` carries a translation by :func:`offset_b`, so one 2D view shows both and a match is one segment. Below
-both images a footer holds the estimator's numbers and the residual scale; it and every mark meant to keep
-its size on screen are scaled by :func:`screen_unit` (image px per screen px), so they read alike on a
-1241x376 KITTI frame and a 3072x2048 photo.
+Image b is drawn below image a or right of it, ``b`` translated by :func:`fviz.record.placement.offset_b`, so one 2D
+view shows both and a match is one segment; marks that keep their size on screen are scaled by
+:func:`fviz.record.placement.screen_unit` (:mod:`fviz.record.placement`). A run's plots' titles, log10 values and y
+ranges: :mod:`fviz.record.plots`.
 
 Timelines: every pair sits at one index of ``pair`` (``inspect`` writes 0, ``eval`` one per pair; ``triage``
 adds ``rank``; ``fviz.log_result`` the index given, :mod:`fviz.record.stream_pairs`); ``inspect`` logs the pair at
@@ -93,8 +91,13 @@ and the ground truth's lines in white), then **probe** (inspect); runs of many p
 ``pair``, or as points over triage's ``rank``) and, over ``pair``, **motion**, and open on them when the recording
 holds no images. Above the tabs of a recording with images: the pair's verdict, one line (triage: its banner, the
 verdict first).
-``fviz open FILE --tab NAME`` rebuilds this blueprint from the file (:func:`fviz.record.reader.recording_blueprint`)
+``fviz open FILE --tab NAME`` rebuilds this blueprint from the file (:func:`fviz.record.rebuild.recording_blueprint`)
 with another tab active.
+
+Past the house's 500 lines (tests/test_architecture.py, OVERSIZED): what stays is what the project keeps in this one
+place, the entity paths with their documentation above, the colours (the estimators' and the residual scale) and both
+recordings' blueprints (inspect/eval/triage, train.rrd); the maths placing marks, charts and plots is in placement,
+charts and plots.
 """
 
 from __future__ import annotations
@@ -103,7 +106,9 @@ from typing import Iterable, Sequence
 
 import numpy as np
 
-from fviz.evaluate import metric_unit  # noqa: F401 (re-exported)
+from fviz.record.charts import compare_bounds, curves_bounds
+from fviz.record.placement import images_extent, view_extent
+from fviz.record.plots import LOG_METRICS, off_scale_note, plot_title
 
 TIMELINE = "pair"
 TRAIN_TIMELINE = "step"  # train.rrd and log_training_step: the optimizer step
@@ -135,6 +140,9 @@ PALETTE = (
     (170, 110, 50),   # brown
 )
 KNOWN_COLORS = {"magsac": 0, "ransac": 1, "8point": 2, "deep": 3, "lmeds": 4, "7point": 5, "ahead": 6, "oracle-mean": 7}
+CHART_BACKGROUND = (32, 32, 36)  # charts and plots: dark, so that the ground truth's white shows in any theme
+# No ground truth: the comparison chart's NSGD between every two estimators, one cell each (green: they agree)
+AGREE_COLOR, DIFFER_COLOR, SAME_COLOR = (40, 170, 80), (190, 60, 50), (70, 70, 76)
 
 
 def estimator_colors(names: Iterable[str]) -> dict[str, tuple[int, int, int]]:
@@ -208,97 +216,10 @@ COMPARE = "compare"
 PROBE_TEXT = "probe/text"
 TRIAGE_TAGS = "triage/tags"  # triage.rrd: the rank's tags, above the tabs
 END = "fviz/end"  # static, the last message of a recording written without Rerun's footer (see record.writer)
-# The overview's comparison of one pair: (metric key, title), one group of bars each, drawn in 2D units.
-COMPARED_METRICS = (
-    ("sed_median", "median SED (px)"),
-    ("rot_err_deg", "rotation error (deg)"),
-    ("trans_err_deg", "translation error (deg)"),
-    ("nsgd", "NSGD (FM-Bench)"),
-    ("agreement_nsgd", "NSGD between the estimators (green: < 0.05, they agree)"),  # a matrix (no ground truth)
-)
-GT_ONLY_METRICS = ("rot_err_deg", "trans_err_deg", "nsgd")  # need a ground truth; agreement_nsgd is without one
-# one row (a title or a bar) per BAR_PITCH: Rerun's labels are ~18 screen px high, so a row must stay >= 19 px
-BAR_WIDTH, BAR_PITCH, BAR_HEAD, BAR_LABEL_X = 300.0, 30.0, 30.0, 450.0
-LABEL_DROP = 0.5 * BAR_PITCH  # Rerun draws a point's label below the point: the chart's label points sit this much higher
-CDF_H = 70.0  # the residual CDF below the bars
-# No ground truth: the chart's NSGD between every two estimators, one cell each (green: they agree)
-AGREE_COLOR, DIFFER_COLOR, SAME_COLOR = (40, 170, 80), (190, 60, 50), (70, 70, 76)
-MATRIX_NAMES_W = 130.0  # the row names' column, left of the cells
-CHART_BACKGROUND = (32, 32, 36)  # charts and plots: dark, so that the ground truth's white shows in any theme
 
-
-def compared_metrics(gt: bool) -> tuple[tuple[str, str], ...]:
-    """The comparison chart's metrics with (``gt``) or without a ground truth."""
-    return tuple((k, t) for k, t in COMPARED_METRICS if (k in GT_ONLY_METRICS) == gt or k == "sed_median")
-
-
-def compare_height(n_bars: int, gt: bool = True) -> float:
-    """Height of the comparison chart with the metrics of :func:`compared_metrics` and ``n_bars`` F's."""
-    matrix_header = 0.0 if gt else BAR_PITCH  # without ground truth the agreement matrix has a row of column names
-    return len(compared_metrics(gt)) * (BAR_HEAD + (n_bars + 0.5) * BAR_PITCH) + matrix_header + BAR_HEAD + CDF_H + 30.0
-# Metric series of a run (``metrics/{key}``), one per F, with their titles. f_dist is left out: it misranks
-# (docs/metrics.md).
+# Metric series of a run (``metrics/{key}``), one per F (their titles: fviz.record.plots). f_dist is left out: it
+# misranks (docs/metrics.md).
 SERIES_METRICS = ("sed_median", "rot_err_deg", "trans_err_deg", "nsgd", "epipole_err_deg", "inlier_ratio")
-METRIC_TITLES = {
-    "sed_median": "median SED (px)", "sed_mean": "mean SED (px)", "sampson_median": "median Sampson (px)",
-    "sampson_mean": "mean Sampson (px)", "rot_err_deg": "rotation error (deg)",
-    "trans_err_deg": "translation direction error (deg)", "pose_err_deg": "pose error (deg, max of rotation and translation)",
-    "nsgd": "NSGD (FM-Bench, share of the diagonal)", "epipole_err_deg": "epipole error (deg)",
-    "inlier_ratio": "inlier ratio (share of the matches)", "n_inliers": "inliers (matches)",
-}
-
-
-def metric_title(key: str) -> str:
-    return METRIC_TITLES.get(key, key)
-
-
-SERIES_CUT = 5.0  # a motion track whose 5-95 % band is this many times wider than the others' (median) is cut off
-# Error metrics are plotted on log axes (Rerun's plots are linear: their log10 is logged beside the value, see
-# metric_plot), so that one range holds an estimator 100x worse beside the best; a value below LOG_FLOOR (the
-# ground truth's zero errors) is plotted at it, below the axis.
-LOG_METRICS = frozenset({"sed_median", "rot_err_deg", "trans_err_deg", "nsgd", "epipole_err_deg"})
-LOG_FLOOR = 1e-4
-
-
-def log_values(values: Sequence[float]) -> np.ndarray:
-    """What a log metric's plot draws: log10 of the values, at least log10(LOG_FLOOR); NaN stays NaN."""
-    with np.errstate(invalid="ignore"):
-        return np.log10(np.maximum(np.asarray(values, float), LOG_FLOOR))
-
-
-def series_range(values: dict[str, Sequence[float]], floor: float = 1e-3, zero: bool = False,
-                 cut: bool = True) -> tuple[float, float, dict] | None:
-    """The y range of one plot of a run. With ``cut`` (motion tracks), every series but a wild one is readable:
-    the union of the series' 5-95 % bands, leaving out a series whose band is over SERIES_CUT times wider than
-    the median band of the others (8-point's +-6000 px epipole swings beside ransac's +-30 px), padded by a
-    quarter of the span; without (metrics), every value of every series, padded by a tenth. The padding is at
-    least ``floor``; from 0 when ``zero``. -> (low, high, {series cut: its 5-95 % band}), None without a
-    finite value.
-    ``values``: {series name: its values over the pairs (NaN: none)}."""
-    bands = {}
-    for name, v in values.items():
-        v = np.asarray(v, float)
-        v = v[np.isfinite(v)]
-        if len(v):
-            bands[name] = (float(np.percentile(v, 5)), float(np.percentile(v, 95))) if cut else (float(v.min()), float(v.max()))
-    if not bands:
-        return None
-    widths = {n: hi - lo for n, (lo, hi) in bands.items()}
-    off = {}
-    for n in bands if cut else ():
-        others = [w for m, w in widths.items() if m != n and w > 0]
-        if len(bands) > 2 and others and widths[n] > SERIES_CUT * max(float(np.median(others)), floor):
-            off[n] = bands[n]
-    kept = [bands[n] for n in bands if n not in off]
-    lo, hi = min(b[0] for b in kept), max(b[1] for b in kept)
-    if zero:
-        lo = min(lo, 0.0)
-    pad = max((0.25 if cut else 0.1) * (hi - lo), floor)
-    return (lo if zero and lo == 0.0 else lo - pad), hi + pad, off
-
-
-# Per track: the smallest padding of its range (px, deg, unit vector), so that a flat series stays a line.
-TRACK_FLOOR = {"epipole_x": 2.0, "epipole_y": 2.0, "epipole_dir_deg": 0.05, "rotation_deg": 0.02}
 MOTION_TRACKS = (
     ("epipole_x", "epipole x in image a (px)"),
     ("epipole_y", "epipole y in image a (px)"),
@@ -308,38 +229,6 @@ MOTION_TRACKS = (
     ("t_y", "translation direction y"),
     ("t_z", "translation direction z"),
 )
-
-
-# The two images share one 2D view, stacked (b below a) or side by side (b right of a), whichever shows them
-# larger in a view of ARRANGE_VIEW_PX screen px (between the overview's image view and an estimator tab's at
-# 1600x1000): KITTI's 3.3:1 frames stack, 4:3, 3:2 and portrait photos sit side by side. Marks that must keep
-# their size on screen (gap, footer, labels' offsets, keypoints, epipole glyphs) are given in screen px and
-# scaled by :func:`screen_unit`, the image px per screen px in the narrowest view (VIEW_PX, the overview's).
-VIEW_PX = (1140.0, 820.0)  # below the verdict line (~60 px)
-ARRANGE_VIEW_PX = (1400.0, 820.0)
-GAP_PX = 24.0  # screen px between image a and image b
-FOOTER_PX = 76.0  # screen px below the images: the estimator's numbers and the residual scale (its end labels reach ~70)
-MARGIN_PX = 12.0  # screen px left, right and above the images: an epipole's glyph on their border shows whole
-
-
-def _image_px_per_screen_px(size_a: tuple[int, int], side: bool, view: tuple[float, float]) -> float:
-    """Image px per screen px when both images (image a's size) and the gap and footer fit ``view``."""
-    (w, h), (vw, vh) = size_a, view
-    vw, vh = vw - 2 * MARGIN_PX, vh - MARGIN_PX
-    if side:
-        return max(2 * w / (vw - GAP_PX), h / (vh - FOOTER_PX))
-    return max(w / vw, 2 * h / (vh - GAP_PX - FOOTER_PX))
-
-
-def side_by_side(size_a: tuple[int, int]) -> bool:
-    """Whether image b sits right of image a rather than below it (see ARRANGE_VIEW_PX)."""
-    return _image_px_per_screen_px(size_a, True, ARRANGE_VIEW_PX) < _image_px_per_screen_px(size_a, False, ARRANGE_VIEW_PX)
-
-
-def screen_unit(size_a: tuple[int, int]) -> float:
-    """Image px per screen px of the image views (at least the overview's, VIEW_PX): a mark of s screen px is
-    s * screen_unit image px wide. ~1.09 on KITTI, ~5 on a 3072x2048 pair."""
-    return _image_px_per_screen_px(size_a, side_by_side(size_a), VIEW_PX)
 
 
 def image(view: str) -> str:
@@ -362,24 +251,15 @@ def matches_owner(path: str) -> str | None:
     return inner if path == matches(inner) and inner else None
 
 
-def match_points(x_a: np.ndarray, x_b: np.ndarray, size_a: tuple[int, int]) -> np.ndarray:
-    """The positions of ``matches``: (N, 2), (N, 2) -> (2N, 2), b's shifted by :func:`offset_b`."""
-    return np.concatenate([x_a, x_b + offset_b(size_a)])
-
-
 def metric(key: str) -> str:
     """A metric's values over the pairs (what readers read)."""
     return f"metrics/{key}"
 
 
 def metric_plot(key: str) -> str:
-    """What a metric's plot draws: ``metrics/{key}/log10`` (log10 of the values, :func:`log_values`) for an
+    """What a metric's plot draws: ``metrics/{key}/log10`` (log10 of the values, :func:`fviz.record.plots.log_values`) for an
     error (LOG_METRICS), else the values."""
     return f"{metric(key)}/log10" if key in LOG_METRICS else metric(key)
-
-
-def plot_title(key: str) -> str:
-    return f"log10 of {metric_title(key)}" if key in LOG_METRICS else metric_title(key)
 
 
 def motion(track: str) -> str:
@@ -436,45 +316,9 @@ def error(name: str) -> str:
     return f"errors/{name}"
 
 
-KEYPOINT_RADIUS_PX = 2.0  # screen px
-
-
-def keypoint_radius(size_a: tuple[int, int]) -> float:
-    """Radius of the keypoints, in image pixels: KEYPOINT_RADIUS_PX on screen, whatever the images' size."""
-    return KEYPOINT_RADIUS_PX * screen_unit(size_a)
-
-
-def offset_b(size_a: tuple[int, int]) -> np.ndarray:
-    """Where image b's origin sits in the shared 2D space: below image a, or right of it (:func:`side_by_side`)."""
-    gap = GAP_PX * screen_unit(size_a)
-    return np.array([size_a[0] + gap, 0.0]) if side_by_side(size_a) else np.array([0.0, size_a[1] + gap])
-
-
-def images_extent(size_a: tuple[int, int], size_b: tuple[int, int]) -> tuple[float, float]:
-    """(width, height) of both images as arranged, in the root frame (image px), footer left out."""
-    right, bottom = offset_b(size_a) + size_b
-    return max(size_a[0], right), max(size_a[1], bottom)
-
-
-def below_images(size_a: tuple[int, int], size_b: tuple[int, int], drop_px: float) -> np.ndarray:
-    """A point ``drop_px`` screen px below both images, centred under them, in image b's frame (the footer's
-    marks are logged under b): (2,)."""
-    w, h = images_extent(size_a, size_b)
-    return np.array([w / 2, h + drop_px * screen_unit(size_a)]) - offset_b(size_a)
-
-
 # ---------------------------------------------------------------------------------------------- blueprint
 # Every view, container and override costs 1.5-5 KB of the file (a chunk with its own schema each, whatever
 # it holds): the layout keeps to the views a reader needs, one 2D view per tab for both images.
-
-
-def view_extent(sizes) -> tuple[float, float, float]:
-    """(width, height with the footer, margin) that the images' views frame, in the root frame: of one pair's
-    ``(size_a, size_b)``, or the largest over many pairs' ``[(size_a, size_b), ...]`` (pairs of several sizes in one
-    recording, one blueprint: each pair fits, drawn from the top left)."""
-    many = [sizes] if np.ndim(sizes[0]) == 1 else list(sizes)
-    return (max(images_extent(*s)[0] for s in many), max(images_extent(*s)[1] + FOOTER_PX * screen_unit(s[0]) for s in many),
-            max(MARGIN_PX * screen_unit(s[0]) for s in many))
 
 
 def _images_view(sizes: tuple[tuple[int, int], tuple[int, int]], name: str, contents: list[str], overrides=None):
@@ -501,8 +345,8 @@ def overview_tab(names: Sequence[str], sizes, single_pair: bool, gt: bool = True
     title = ("ground truth: residuals (keypoints) and lines (white)" if ref == GT
              else f"no ground truth: {ref}'s residuals (keypoints) and lines")
     images = _images_view(sizes, f"{notice}{title}; every F's epipole", contents)
-    chart = rrb.VisualBounds2D(x_range=[-2 * BAR_PITCH, BAR_LABEL_X + 90.0],
-                               y_range=[-BAR_HEAD, compare_height(len(names) + gt, gt)])
+    x_range, y_range = compare_bounds(len(names) + gt, gt)
+    chart = rrb.VisualBounds2D(x_range=x_range, y_range=y_range)
     side = [rrb.Spatial2DView(origin=COMPARE, name="comparison (one bar per F, in its colour)", visual_bounds=chart,
                               background=CHART_BACKGROUND)] if single_pair else []
     side.append(rrb.TextDocumentView(origin=SUMMARY, name="summary"))
@@ -547,10 +391,6 @@ def legend_view(origin: str, n: int, name: str, pitch: float = 24.0):
                              visual_bounds=rrb.VisualBounds2D(x_range=[-20.0, 260.0], y_range=[-pitch, n * pitch]))
 
 
-def _short(v: float) -> str:
-    return f"{v / 1000:.3g}k" if abs(v) >= 1000 else f"{v:.3g}"
-
-
 def _series_grid(entity_of, tracks: Sequence[tuple[str, str]], name: str, ranges: dict | None, n_series: int):
     """One plot per track, its y range from ``ranges`` ({path: series_range or None}; a track with no finite
     value is left out), the plots' legends hidden (they covered the data) and one legend view instead. A series
@@ -569,7 +409,7 @@ def _series_grid(entity_of, tracks: Sequence[tuple[str, str]], name: str, ranges
         if ranges is not None:
             lo, hi, cut = ranges[path]
             axis = rrb.ScalarAxis(range=(lo, hi), zoom_lock=False)
-            note = "".join(f"; {n} off-scale {_short(a)} to {_short(b)}" for n, (a, b) in cut.items())
+            note = off_scale_note(cut)
             any_cut |= bool(cut)
         views.append(rrb.TimeSeriesView(origin=path, name=title + note, background=dark, axis_y=axis,
                                         plot_legend=PlotLegend(visible=False)))
@@ -577,16 +417,13 @@ def _series_grid(entity_of, tracks: Sequence[tuple[str, str]], name: str, ranges
     return rrb.Grid(*views, name=name)
 
 
-CURVE_W, CURVE_H, CURVE_GAP, CURVE_PANELS = 420.0, 300.0, 150.0, 3  # the curves' panels, in 2D units (y down)
-
-
 def curves_tab(n_series: int):
     """The cumulative error curves (runs of eval): one 2D chart, drawn by :func:`fviz.record.run_plots.log_curves`,
     its legend below."""
     import rerun.blueprint as rrb
 
-    width = CURVE_PANELS * CURVE_W + (CURVE_PANELS - 1) * CURVE_GAP
-    bounds = rrb.VisualBounds2D(x_range=[-80.0, width + 20.0], y_range=[-70.0, CURVE_H + 90.0 + 24.0 * n_series])
+    x_range, y_range = curves_bounds(n_series)
+    bounds = rrb.VisualBounds2D(x_range=x_range, y_range=y_range)
     return rrb.Spatial2DView(origin=CURVES, name="curves", background=CHART_BACKGROUND, visual_bounds=bounds)
 
 
@@ -601,11 +438,11 @@ def blueprint(names: Sequence[str], sizes: Sequence | None, single_pair: bool, h
     bars and the probe) rather than a run (metric series and motion tracks over the pair timeline);
     ``head``: triage's banner and tags above the tabs (and the time panel on ``rank``); ``active``: the tab it
     opens on (default the first); ``classes``: (one pair) each estimator's keypoint classes, see
-    :func:`estimator_tab`; runs: ``ranges`` the plots' y ranges ({path: :func:`series_range`}), ``curves`` a
+    :func:`estimator_tab`; runs: ``ranges`` the plots' y ranges ({path: :func:`fviz.record.plots.series_range`}), ``curves`` a
     tab of cumulative error curves, ``run_summary`` a summary tab with the run's figures; ``notice``: a
     warning put in the overview's title (a suspect ground truth); ``verdict``: the pair's verdict (``VERDICT``) above
     the tabs (with ``head`` the banner opens with it instead); ``timeline``: the time panel's (default: ``probe`` for one
-    pair, ``rank`` with ``head``, else ``pair``). ``sizes`` may list many pairs' (:func:`view_extent`)."""
+    pair, ``rank`` with ``head``, else ``pair``). ``sizes`` may list many pairs' (:func:`fviz.record.placement.view_extent`)."""
     import rerun.blueprint as rrb
 
     ests = [n for n in names if n != GT]

@@ -11,6 +11,7 @@ import numpy as np
 from fviz.evaluate import PairResult
 from fviz.geometry import border_point, describe_epipole
 from fviz.record import layout as L
+from fviz.record.placement import below_images, screen_unit
 
 
 Colors = dict[str, tuple[int, int, int]]
@@ -139,8 +140,8 @@ SCALE_STEP = 28.0  # one residual bin of the scale below the images, screen px
 
 def _scale_row(size_a: tuple[int, int], size_b: tuple[int, int]) -> tuple[float, float, float, float]:
     """The residual scale's row in image b's frame: (x of its left end, y, one bin's width, image px per screen px)."""
-    unit = L.screen_unit(size_a)
-    x, y = L.below_images(size_a, size_b, 46.0)
+    unit = screen_unit(size_a)
+    x, y = below_images(size_a, size_b, 46.0)
     step = SCALE_STEP * unit
     return x - step * L.RESIDUAL_CLASSES / 2, y, step, unit
 

@@ -10,6 +10,7 @@ import numpy as np
 from fviz.evaluate import PairResult
 from fviz.geometry import NSGD_RECALL_THRESHOLD
 from fviz.record import layout as L
+from fviz.record.charts import BAR_HEAD, BAR_LABEL_X, BAR_PITCH, BAR_WIDTH, CDF_H, COMPARED_METRICS, LABEL_DROP, MATRIX_NAMES_W
 from fviz.record.marks import Colors, rgb
 from fviz.record.pair_text import fmt
 from fviz.record.run_plots import cumulative_curve
@@ -40,17 +41,17 @@ def log_comparison(rec, result: PairResult, colors: Colors) -> None:
     CDF of each F's residuals (SED) over the evaluation matches (log x)."""
     import rerun as rr
 
-    width, pitch, head = L.BAR_WIDTH, L.BAR_PITCH, L.BAR_HEAD
+    width, pitch, head = BAR_WIDTH, BAR_PITCH, BAR_HEAD
     bars, bar_colors, bar_radii, points, labels = [], [], [], [], []
     y = 0.0
-    for key, title in L.COMPARED_METRICS:
+    for key, title in COMPARED_METRICS:
         values = [np.nan if r.error else float(r.metrics.get(key, np.nan)) for r in result.estimators]
         if not any(np.isfinite(values)):
             continue
         if key == "agreement_nsgd" and result.agreement:
             y = _agreement_matrix(result.agreement, title, y, bars, bar_colors, bar_radii, points, labels)
             continue
-        points.append((width / 2, y - L.LABEL_DROP))
+        points.append((width / 2, y - LABEL_DROP))
         labels.append(title + " (log scale)")
         y += head
         for r, v, length in zip(result.estimators, values, bar_lengths(values, width)):
@@ -60,7 +61,7 @@ def log_comparison(rec, result: PairResult, colors: Colors) -> None:
             bar_colors.append(rgb(colors[r.name]))
             bar_radii.append(pitch / 3)
             text = f"{r.name}: {'error' if r.error else fmt(v)}"
-            points.append((max(length, 0.5) + 12.0 + 4.2 * len(text), y - L.LABEL_DROP))  # centred on its point
+            points.append((max(length, 0.5) + 12.0 + 4.2 * len(text), y - LABEL_DROP))  # centred on its point
             labels.append(text)
             y += pitch
         y += pitch / 2
@@ -70,15 +71,15 @@ def log_comparison(rec, result: PairResult, colors: Colors) -> None:
     px = width * (u - u[0]) / (u[-1] - u[0])
     for r in ok:
         recall = cumulative_curve(r.residuals_px[result.eval_mask], RESIDUAL_CDF_PX)
-        bars.append(np.stack([px, y0 + L.CDF_H * (1 - recall)], -1))
+        bars.append(np.stack([px, y0 + CDF_H * (1 - recall)], -1))
         bar_colors.append(rgb(colors[r.name]))
         bar_radii.append(1.5)
     if ok:
-        bars.append([(0.0, y0), (0.0, y0 + L.CDF_H), (width, y0 + L.CDF_H)])
+        bars.append([(0.0, y0), (0.0, y0 + CDF_H), (width, y0 + CDF_H)])
         bar_colors.append(rgb((200, 200, 200)))
         bar_radii.append(0.6)
-        points += [(x, y - L.LABEL_DROP) for x, y in ((width / 2, y0 - 16.0), (0.0, y0 + L.CDF_H + 14.0),
-                   (width * 2 / 3, y0 + L.CDF_H + 14.0), (width, y0 + L.CDF_H + 14.0), (-30.0, y0), (-30.0, y0 + L.CDF_H))]
+        points += [(x, y - LABEL_DROP) for x, y in ((width / 2, y0 - 16.0), (0.0, y0 + CDF_H + 14.0),
+                   (width * 2 / 3, y0 + CDF_H + 14.0), (width, y0 + CDF_H + 14.0), (-30.0, y0), (-30.0, y0 + CDF_H))]
         labels += ["matches with SED < x (per F)", "0.01", "1 px", "10", "100%", "0"]
     # labels white: Rerun draws them on grey boxes, where coloured text is hard to read; the bar beside each
     # label carries the colour
@@ -92,17 +93,17 @@ def _agreement_matrix(ag: dict, title: str, y: float, bars: list, bar_colors: li
     down: a cell per two estimators with their NSGD, green where they agree (< the threshold), red where not.
     -> the y below it."""
     names, m = ag["names"], np.asarray(ag["matrix"], float)
-    pitch, x0 = L.BAR_PITCH, L.MATRIX_NAMES_W
-    cell = min(100.0, (L.BAR_LABEL_X + 80.0 - x0) / len(names))
-    points.append(((L.BAR_LABEL_X + 90.0 - 2 * pitch) / 2, y - L.LABEL_DROP))  # the middle of the chart's view
+    pitch, x0 = BAR_PITCH, MATRIX_NAMES_W
+    cell = min(100.0, (BAR_LABEL_X + 80.0 - x0) / len(names))
+    points.append(((BAR_LABEL_X + 90.0 - 2 * pitch) / 2, y - LABEL_DROP))  # the middle of the chart's view
     labels.append(title)
-    y += L.BAR_HEAD
+    y += BAR_HEAD
     for j, name in enumerate(names):  # the column names
-        points.append((x0 + (j + 0.5) * cell, y - L.LABEL_DROP))
+        points.append((x0 + (j + 0.5) * cell, y - LABEL_DROP))
         labels.append(name)
     for i, name in enumerate(names):
         y += pitch
-        points.append((x0 / 2, y - L.LABEL_DROP))
+        points.append((x0 / 2, y - LABEL_DROP))
         labels.append(name)
         for j in range(len(names)):
             bars.append([(x0 + j * cell + 6.0, y), (x0 + (j + 1) * cell - 6.0, y)])
@@ -110,6 +111,6 @@ def _agreement_matrix(ag: dict, title: str, y: float, bars: list, bar_colors: li
             bar_colors.append(rgb(L.SAME_COLOR if i == j else L.AGREE_COLOR if agree else L.DIFFER_COLOR))
             bar_radii.append(0.45 * pitch)
             if i != j:
-                points.append((x0 + (j + 0.5) * cell, y - L.LABEL_DROP))
+                points.append((x0 + (j + 0.5) * cell, y - LABEL_DROP))
                 labels.append(fmt(m[i, j], 2))
     return y + 1.5 * pitch

@@ -12,6 +12,7 @@ from fviz.data.pair import Pair
 from fviz.evaluate import PairResult
 from fviz.geometry import clip_lines, epipoles, lines_in_a, lines_in_b, symmetric_epipolar_distance
 from fviz.record import layout as L
+from fviz.record.placement import keypoint_radius, match_points, offset_b, screen_unit
 from fviz.record.marks import (
     CROSS_PX, LINE_PX, Colors, epipole_marks, log_epipoles, log_marks, names_of, residual_scale, rgb, ring, scale_ends,
 )
@@ -51,8 +52,8 @@ def log_pair(rec, index: int, pair: Pair, result: PairResult, n_lines: int = 30,
     verdict = result.verdict if by is None and result.verdict is not None else verdict_of(pair, result, by)
     rec.log(L.VERDICT, rr.TextDocument(verdict.markdown(), media_type="text/markdown"))
     sizes = {"a": pair.size_a, "b": pair.size_b}
-    unit = L.screen_unit(pair.size_a)
-    rec.log("b", rr.Transform3D(translation=[*L.offset_b(pair.size_a), 0.0]))
+    unit = screen_unit(pair.size_a)
+    rec.log("b", rr.Transform3D(translation=[*offset_b(pair.size_a), 0.0]))
     for v, img in (("a", pair.image_a), ("b", pair.image_b)) if images else ():
         rec.log(L.image(v), rr.EncodedImage(contents=encode_jpeg(img), media_type="image/jpeg"))
     log_pair_text(rec, result, pair_markdown(result, probe_steps))
@@ -67,8 +68,8 @@ def log_pair(rec, index: int, pair: Pair, result: PairResult, n_lines: int = 30,
             continue
         color = rgb(colors[r.name])
         if not shared or r.name == L.GT:  # else the blueprint holds its classes
-            rec.log(L.matches(r.name), rr.Points2D(L.match_points(m.x_a, m.x_b, pair.size_a), class_ids=classes[r.name],
-                                                   radii=L.keypoint_radius(pair.size_a),
+            rec.log(L.matches(r.name), rr.Points2D(match_points(m.x_a, m.x_b, pair.size_a), class_ids=classes[r.name],
+                                                   radii=keypoint_radius(pair.size_a),
                                                    **score_labels(m)))
         lines = {"a": lines_in_a(r.F, m.x_b[sub]), "b": lines_in_b(r.F, m.x_a[sub])}
         for v, e in zip(L.VIEWS, epipoles(r.F)):
@@ -113,12 +114,12 @@ def log_labelled(rec, pair: Pair, result: PairResult) -> None:
         return
     x_a, x_b = (np.asarray(x, float) for x in pair.gt_points)
     residual = symmetric_epipolar_distance(gt.F, x_a, x_b)
-    unit = L.screen_unit(pair.size_a)
+    unit = screen_unit(pair.size_a)
     text = [f"labelled correspondence {i}: {v:.2f} px off F_gt" for i, v in enumerate(residual)]
     off = np.flatnonzero(residual >= L.RESIDUAL_MAX_PX)
-    ends = L.match_points(x_a[off], x_b[off], pair.size_a)
+    ends = match_points(x_a[off], x_b[off], pair.size_a)
     rings = [ring(p, 2.5 * L.LABELLED_RADIUS_PX * unit, 24) for p in ends]
-    rec.log(L.LABELLED, rr.Points2D(L.match_points(x_a, x_b, pair.size_a), class_ids=np.tile(L.residual_classes(residual), 2),
+    rec.log(L.LABELLED, rr.Points2D(match_points(x_a, x_b, pair.size_a), class_ids=np.tile(L.residual_classes(residual), 2),
                                     radii=L.LABELLED_RADIUS_PX * unit, labels=text + text, show_labels=False, draw_order=38.0),
             rr.LineStrips2D(rings, colors=[rgb(L.PROBE_COLOR)] * len(rings), radii=-1.0, labels=[text[i] for i in off] * 2,
                             show_labels=True, draw_order=39.0))
@@ -163,11 +164,11 @@ def log_reference(rec, pair: Pair, result: PairResult, colors: Colors, sub: np.n
         seg_a, in_a = clip_lines(lines_in_a(r.F, result.matches.x_b[k]), *pair.size_a)
         seg_b, in_b = clip_lines(lines_in_b(r.F, result.matches.x_a[k]), *pair.size_b)
         both = in_a & in_b
-        strips = [*seg_a[both], *(seg_b[both] + L.offset_b(pair.size_a))]
+        strips = [*seg_a[both], *(seg_b[both] + offset_b(pair.size_a))]
     n = len(strips)
     if n:  # the names: black on Rerun's light label box (text takes its strip's colour), top right of each image
         strips += [np.stack([at, at]) for at in (np.array([0.8 * pair.size_a[0], 22.0]),
-                                                  np.array([0.8 * pair.size_b[0], 22.0]) + L.offset_b(pair.size_a))]
+                                                  np.array([0.8 * pair.size_b[0], 22.0]) + offset_b(pair.size_a))]
     colors_ = [rgb(colors[name])] * n + [rgb(L.LABEL_ON_PHOTO)] * (len(strips) - n) if n else []
     rec.log(L.REFERENCE, rr.LineStrips2D(strips, colors=colors_ or None, radii=[L.REFERENCE_RADIUS] * n + [0.0] * (len(strips) - n),
                                          labels=[""] * n + [reference_label(name)] * (len(strips) - n) or None,

@@ -12,6 +12,7 @@ from fviz.diagnose import GT_SUSPECT_NOTE
 from fviz.evaluate import PairResult, agreement_text
 from fviz.geometry import NSGD_RECALL_THRESHOLD
 from fviz.record import layout as L
+from fviz.record.placement import below_images
 from fviz.record.marks import names_of, place_tags, rgb
 
 
@@ -120,7 +121,7 @@ def estimator_caption(r, result: PairResult) -> str:
 def caption_strip(size_a: tuple[int, int], size_b: tuple[int, int], r, result: PairResult) -> tuple:
     """The estimator's numbers below the images (in image b's frame), as a labelled invisible strip:
     (strip, colour, radius, label)."""
-    at = L.below_images(size_a, size_b, 18.0)
+    at = below_images(size_a, size_b, 18.0)
     return np.stack([at, at]), rgb(L.LABEL_OFF_PHOTO), 0.0, estimator_caption(r, result)
 
 

@@ -13,6 +13,7 @@ from fviz.estimators.registry import is_baseline
 from fviz.evaluate import PairResult
 from fviz.geometry import clip_lines, lines_in_a, lines_in_b, symmetric_epipolar_distance
 from fviz.record import layout as L
+from fviz.record.placement import offset_b, screen_unit
 from fviz.record.marks import Colors, log_marks, names_of, rgb, ring
 
 PROBE_STEPS = 20  # the probe's steps by default
@@ -103,7 +104,7 @@ def probe_walk(pair: Pair, result: PairResult, by: str | None = None, steps: int
     """The probe's points (:func:`probe_points`) and the indices it walks: at most ``steps``, near-duplicates
     (within PROBE_SPACING_PX on screen) skipped."""
     points = probe_points(result, by, pair.gt_points)
-    return points, spread_out(points, PROBE_SPACING_PX * L.screen_unit(pair.size_a), max(steps, 0))
+    return points, spread_out(points, PROBE_SPACING_PX * screen_unit(pair.size_a), max(steps, 0))
 
 
 def empty_probe_text(result: PairResult, steps: int, fs: list) -> str:
@@ -130,9 +131,9 @@ def log_probe(rec, index: int, pair: Pair, result: PairResult, steps: int = PROB
         rec.set_time(L.TIMELINE, sequence=index)
         rec.log(L.PROBE_TEXT, rr.TextDocument(empty_probe_text(result, steps, ok), media_type="text/markdown"))
         return 0
-    unit = L.screen_unit(pair.size_a)
+    unit = screen_unit(pair.size_a)
     sizes = {"a": pair.size_a, "b": pair.size_b}
-    shift = L.offset_b(pair.size_a)
+    shift = offset_b(pair.size_a)
     marker = L.PROBE_COLOR
     for k, j in enumerate(order):
         rec.set_time(L.PROBE_TIMELINE, sequence=k)

@@ -1,8 +1,9 @@
-"""Read fviz recordings back: what ``fviz summary`` prints and what tests check recordings with.
+"""Read fviz recordings back, low level: open a file, its chunks, an entity's columns and texts, its timelines,
+store ids and stored blueprint. What is built from them: :mod:`fviz.record.summary` (what ``fviz summary`` prints)
+and :mod:`fviz.record.rebuild` (the blueprint, plot ranges and click pairs rebuilt from a file).
 
-Works on any fviz ``.rrd`` (``inspect``, ``eval``, ``triage``) and on any index timeline: items are the
-time indices of the ``pair/info`` and ``pair/metrics`` rows on the recording's main timeline (``rank`` if
-present, else ``pair``, else the first other sequence timeline; see :func:`main_timeline`).
+Works on any fviz ``.rrd`` (``inspect``, ``eval``, ``triage``) and on any index timeline: a recording's main
+timeline is ``rank`` if present, else ``pair``, else the first other sequence timeline (:func:`main_timeline`).
 
 Every function takes a path and re-reads the file (pure: no caches, no state). A missing file, a file that
 is not an RRD, or one cut mid-write (no footer, or a frame running past the end) raises
@@ -14,10 +15,8 @@ a leading ``/`` is accepted); the root entity is ``/``.
 
 from __future__ import annotations
 
-import math
 import warnings
 import weakref
-from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Iterator, NamedTuple
 
@@ -30,77 +29,8 @@ BUILTIN_TIMELINES = ("log_time", "log_tick", L.PROBE_TIMELINE)
 PREFERRED_TIMELINES = ("rank", L.TIMELINE)
 
 _ROW_ID = "rerun.controls.RowId"
-_ESTIMATORS = "estimators"  # the names column of ``pair/metrics``
 _TEXT = "TextDocument:text"
 _LOG_TEXT = "TextLog:text"
-
-
-@dataclass(frozen=True)
-class Item:
-    """One time index of the main timeline (one pair in inspect/eval, one rank in triage).
-
-    index:   the value on the main timeline (int)
-    name:    the pair's name from ``pair/info`` (None when not logged)
-    metrics: {metric: {estimator: value}} from ``pair/metrics``; NaN where an estimator failed
-    errors:  {estimator: message} from ``errors/{estimator}`` (the estimator's error, as in ``inspect --json``)
-    times:   {timeline: value} of the other sequence timelines on those rows (e.g. ``{"pair": 7}`` in triage)
-    """
-
-    index: int
-    name: str | None = None
-    metrics: dict[str, dict[str, float]] = field(default_factory=dict)
-    errors: dict[str, str] = field(default_factory=dict)
-    times: dict[str, int] = field(default_factory=dict)
-
-    def estimators(self) -> list[str]:
-        """Estimator names with a value or an error here, in series order."""
-        seen: dict[str, None] = {}
-        for per in self.metrics.values():
-            seen.update(dict.fromkeys(per))
-        seen.update(dict.fromkeys(self.errors))
-        return list(seen)
-
-
-@dataclass(frozen=True)
-class RecordingSummary:
-    """What a recording holds (see :func:`read_recording`).
-
-    path:          the file read
-    app_id:        the recording's application id (``fviz-inspect``, ...)
-    recording_id:  its recording id
-    timeline:      the main timeline (None when nothing is on a timeline)
-    timelines:     every index timeline found, builtin ones included, sorted
-    items:         one :class:`Item` per index of the main timeline, ascending
-    metrics:       metric names (columns of ``pair/metrics``), sorted
-    estimators:    estimator names (``gt`` first), in logged order over the items
-    has_blueprint: whether a default blueprint is stored in the file
-    entity_paths:  every entity path, sorted (Rerun's internal ``/__properties`` left out)
-    """
-
-    path: Path
-    app_id: str
-    recording_id: str
-    timeline: str | None
-    timelines: tuple[str, ...]
-    items: tuple[Item, ...]
-    metrics: tuple[str, ...]
-    estimators: tuple[str, ...]
-    has_blueprint: bool
-    entity_paths: tuple[str, ...]
-
-    def item(self, name_or_index: str | int) -> Item:
-        """The item named so (pair name) or at that index; KeyError if absent."""
-        by_name = isinstance(name_or_index, str)
-        for it in self.items:
-            if (it.name if by_name else it.index) == name_or_index:
-                return it
-        raise KeyError(name_or_index)
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-ready: NaN and infinities become None, the path a string."""
-        d = asdict(self)
-        d["path"] = str(self.path)
-        return _nan_to_none(d)
 
 
 # --------------------------------------------------------------------------------------------- opening
@@ -236,6 +166,12 @@ def timelines(path: str | Path) -> list[str]:
     return sorted(_contents(open_rrd(path)).timelines)
 
 
+def store_ids(path: str | Path) -> tuple[str, str]:
+    """(application id, recording id) of the recording in the file."""
+    s = open_rrd(path).recordings()[0]
+    return s.application_id, s.recording_id
+
+
 def main_timeline(names: list[str] | tuple[str, ...]) -> str | None:
     """``rank`` > ``pair`` > the first other non-builtin timeline (sorted) > None."""
     for t in PREFERRED_TIMELINES:
@@ -297,104 +233,6 @@ def text(path: str | Path, entity: str) -> list[str]:
     return [v[0] if isinstance(v, list) and v else v for v in column(path, entity, name)]
 
 
-# --------------------------------------------------------------------------------------------- summary
-
-
-def read_recording(path: str | Path, timeline: str | None = None) -> RecordingSummary:  # noqa: C901 (one pass over the chunks, a branch per entity kind)
-    """Summarize a recording: app id, timelines, items (pair name, metrics, errors per index), blueprint,
-    entity paths.  timeline: the index timeline of the items (default :func:`main_timeline`)."""
-    p = Path(path)
-    reader = open_rrd(p)
-    rec = reader.recordings()[0]
-    contents = _contents(reader)
-    paths, all_timelines = contents.paths, sorted(contents.timelines)
-    tl = timeline or main_timeline(all_timelines)
-    if timeline is not None and timeline not in all_timelines:
-        raise FvizError(f"{p}: no timeline {timeline!r} (it has {', '.join(all_timelines) or 'none'})")
-    entities = sorted({_layout(e) for e in paths if not e.startswith("/__")})
-    error_prefix = L.error("")
-
-    values: dict[int, dict[str, list[float]]] = {}  # index -> metric -> values in estimator order
-    names: dict[int, list[str]] = {}  # index -> estimator names
-    pair_names: dict[int, str] = {}
-    errors: dict[int, dict[str, str]] = {}
-    times: dict[int, dict[str, int]] = {}
-
-    def rows(rb) -> Iterator[tuple[int, int]]:
-        """(row number, index on tl) for the rows of a temporal batch that are on tl."""
-        if tl is None or tl not in rb.schema.names:
-            return
-        others = [t for t in _index_names(rb) if t != tl and t not in BUILTIN_TIMELINES]
-        other_vals = {t: _ints(rb.column(t)) for t in others}
-        for i, ix in enumerate(_ints(rb.column(tl))):
-            if ix is None:
-                continue
-            slot = times.setdefault(ix, {})
-            for t in others:
-                if other_vals[t][i] is not None:
-                    slot[t] = other_vals[t][i]
-            yield i, ix
-
-    content = [_entity(L.PAIR_METRICS), _entity(L.PAIR_INFO), _entity(L.error("**"))]
-    for ent, is_static, rb in _chunks(p, content, reader):
-        cols = rb.schema.names
-        if is_static:
-            continue
-        if ent == L.PAIR_METRICS and _ESTIMATORS in cols:
-            metric_cols = [c for c in cols if c not in (_ROW_ID, _ESTIMATORS, *_index_names(rb))]
-            data = {c: rb.column(c).to_pylist() for c in [_ESTIMATORS, *metric_cols]}
-            for i, ix in rows(rb):
-                if data[_ESTIMATORS][i] is None:
-                    continue
-                names[ix] = list(data[_ESTIMATORS][i])
-                values[ix] = {c: [math.nan if x is None else float(x) for x in data[c][i]]
-                              for c in metric_cols if data[c][i] is not None}
-        elif ent == L.PAIR_INFO and _TEXT in cols:
-            col = rb.column(_TEXT).to_pylist()
-            for i, ix in rows(rb):
-                if col[i]:
-                    pair_names[ix] = col[i][0]
-        elif ent.startswith(error_prefix) and _LOG_TEXT in cols:
-            est = ent[len(error_prefix):]
-            col = rb.column(_LOG_TEXT).to_pylist()
-            for i, ix in rows(rb):
-                if col[i]:
-                    msg = col[i][0]
-                    prefix = f"{est} failed: "  # how the writer words it
-                    errors.setdefault(ix, {})[est] = msg[len(prefix):] if msg.startswith(prefix) else msg
-
-    metrics = sorted({k for per in values.values() for k in per})
-    estimators: dict[str, None] = {}
-    for ix in sorted(names):
-        estimators.update(dict.fromkeys(names[ix]))
-    items = []
-    for ix in sorted(set(values) | set(pair_names) | set(errors)):
-        per_metric = {key: dict(zip(names.get(ix, []), vals)) for key, vals in sorted(values.get(ix, {}).items())}
-        items.append(Item(ix, pair_names.get(ix), per_metric, errors.get(ix, {}), times.get(ix, {})))
-    return RecordingSummary(
-        path=p,
-        app_id=rec.application_id,
-        recording_id=rec.recording_id,
-        timeline=tl,
-        timelines=tuple(all_timelines),
-        items=tuple(items),
-        metrics=tuple(metrics),
-        estimators=tuple(estimators),
-        has_blueprint=bool(reader.blueprints()),
-        entity_paths=tuple(entities),
-    )
-
-
-def _nan_to_none(x):
-    if isinstance(x, float) and not math.isfinite(x):
-        return None  # JSON has no NaN / Infinity
-    if isinstance(x, dict):
-        return {k: _nan_to_none(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_nan_to_none(v) for v in x]
-    return x
-
-
 def image_size(path: str | Path, view: str) -> tuple[int, int] | None:
     """(width, height) of the first ``{view}/image`` of a recording, None when it holds no image."""
     import cv2
@@ -409,76 +247,7 @@ def image_size(path: str | Path, view: str) -> tuple[int, int] | None:
     return None if img is None else (int(img.shape[1]), int(img.shape[0]))
 
 
-def recording_blueprint(path: str | Path, active: str | None = None):
-    """(application id, the blueprint fviz stores in such a recording) rebuilt from what the file holds,
-    opening on tab ``active`` (an estimator's name, ``overview``, ``probe``, ``metrics``, ``motion``).
-    FvizError naming the tabs there are when there is no such tab."""
-    s = read_recording(path)
-    many = L.PROBE_TIMELINE in s.timelines and len(s.items) > 1  # pairs logged into one stream (record.stream_pairs)
-    sizes = sorted({(f.size_a, f.size_b) for f in click_pairs(path).values()}) if many else (image_size(path, "a"), image_size(path, "b"))
-    single_pair = L.PROBE_TIMELINE in s.timelines or L.COMPARE in s.entity_paths
-    classes = match_classes(path) if single_pair and not many and L.matches(L.GT) in s.entity_paths else None
-    ranges = None if single_pair else series_ranges(path, s.entity_paths)
-    notice = suspect_notice_of(path) if single_pair and L.SUMMARY in s.entity_paths else ""
-    try:
-        bp = L.blueprint(list(s.estimators), sizes if None not in sizes else None, single_pair=single_pair,
-                         head=L.TRIAGE_TAGS in s.entity_paths, active=active, classes=classes, ranges=ranges,
-                         curves=any(p.startswith(L.CURVES + "/") for p in s.entity_paths),
-                         run_summary=L.RUN_SUMMARY in s.entity_paths, notice="" if many else notice,
-                         verdict=L.VERDICT in s.entity_paths and None not in sizes, timeline=L.TIMELINE if many else None)
-    except ValueError as exc:
-        raise FvizError(f"--tab {active}: {path} has {exc}") from None
-    return s.app_id, bp
-
-
-SUSPECT_BANNER = "**⚠ ground truth suspect**: "  # how a single pair's summary opens when it is (record.pair_text)
-
-
-def suspect_notice_of(path: str | Path) -> str:
-    """The overview's warning of a single pair's recording, from its summary's first line."""
-    from fviz.diagnose import GT_SUSPECT_NOTE
-    from fviz.record.pair_text import suspect_notice
-
-    first = (text(path, L.SUMMARY) or [""])[0].split("\n", 1)[0]
-    return suspect_notice([GT_SUSPECT_NOTE + first.removeprefix(SUSPECT_BANNER)] if first.startswith(SUSPECT_BANNER) else [])
-
-
-def series_ranges(path: str | Path, paths=None) -> dict[str, tuple | None]:
-    """The y ranges of a run's plots (as the writer chose them) from the series the file holds."""
-    from fviz.record.run_plots import VALUE_PATHS, ranges_of_values
-
-    paths = paths if paths is not None else entity_paths(path)
-    values: dict[str, dict[str, list[float]]] = {}
-    for p in VALUE_PATHS:
-        if p not in paths:
-            continue
-        values[p] = series_values(path, p)
-    return ranges_of_values(values)
-
-
-def series_values(path: str | Path, entity: str) -> dict[str, list[float]]:
-    """{series name: its value at each logged time (NaN: none)} of one of a run's plotted entities."""
-    per: dict[str, list[float]] = {n: [] for n in series_names(path, entity)}
-    try:
-        rows = column(path, entity, "Scalars:scalars")
-    except FvizError:  # styled, never logged
-        rows = []
-    for row in rows:
-        for n, v in zip(per, row or ()):
-            per[n].append(math.nan if v is None else float(v))
-    return per
-
-
-def series_names(path: str | Path, entity: str) -> list[str]:
-    """The names of a run's series (drawn as lines or as points), in the order of their values."""
-    for style in ("SeriesLines:names", "SeriesPoints:names"):
-        try:
-            names = next((v for v in column(path, entity, style) if v), None)
-        except FvizError:
-            names = None
-        if names:
-            return list(names)
-    return []
+# --------------------------------------------------------------------------------------------- stored blueprint
 
 
 def _blueprint_fields(reader) -> dict[str, dict[str, Any]]:
@@ -499,25 +268,6 @@ def _blueprint_fields(reader) -> dict[str, dict[str, Any]]:
     return fields
 
 
-def match_classes(path: str | Path) -> dict[str, list[int]]:
-    """{estimator: class ids of its ``layout.matches``} of the first pair: logged in the recording (runs, and
-    the ground truth of a single pair) or, for an estimator of a single pair, the override of its tab."""
-    reader = open_rrd(path)
-    out: dict[str, list[int]] = {}
-    for ent, _, rb in _chunks(path, "/est/**", reader):
-        name = L.matches_owner(ent)
-        if name is not None and "Points2D:class_ids" in rb.schema.names:
-            out.setdefault(name, rb.column("Points2D:class_ids").to_pylist()[0])
-    fields = _blueprint_fields(reader)
-    for ref, f in fields.items():
-        if ref.startswith("view/") and ref.count("/") == 1:
-            tag = f"{ref}/ViewContents/overrides/{L.matches(L.GT)}/visualizers/"
-            override = next((v for k, v in fields.items() if k.startswith(tag) and "class_ids" in v), None)
-            if override is not None:
-                out.setdefault((f.get("display_name") or [""])[0], override["class_ids"])
-    return out
-
-
 def blueprint_tabs(path: str | Path) -> dict[str, list[str]]:
     """The stored blueprint's tabs: {tab title: the entity queries of every view in it}, in tab order
     ({} when the file stores no tabbed blueprint)."""
@@ -535,46 +285,3 @@ def blueprint_tabs(path: str | Path) -> dict[str, list[str]]:
     tabs = next((f for f in fields.values() if f.get("container_kind") == [1]), None)  # 1: Tabs
     return {title(ref): queries(ref) for ref in tabs.get("contents", [])} if tabs else {}
 
-
-def click_pairs(path: str | Path) -> dict[int, Any]:
-    """{pair index: :class:`fviz.record.clickable.PairFs`} of every pair whose images, F's (``pair/fundamental``) and
-    matches the recording holds (the ground truth's matches, else the first estimator's); {} for a recording
-    written before fviz logged the F's, or without images (eval without --full)."""
-    import numpy as np
-
-    from fviz.record.clickable import PairFs
-
-    reader = open_rrd(path)
-    tl = L.TIMELINE
-    fs: dict[int, dict] = {}
-    pts: dict[int, dict[str, list]] = {}
-    for ent, is_static, rb in _chunks(path, [_entity(L.PAIR_FS), "+ /est/**"], reader):
-        if is_static or tl not in rb.schema.names:
-            continue
-        times = _ints(rb.column(tl))
-        if ent == L.PAIR_FS:
-            cols = {n: rb.column(n).to_pylist() for n in ("estimators", "F", "size_a", "size_b") if n in rb.schema.names}
-            for i, t in enumerate(times):
-                fs[t] = {k: v[i] for k, v in cols.items()}
-        elif L.matches_owner(ent) and "Points2D:positions" in rb.schema.names:
-            for t, p in zip(times, rb.column("Points2D:positions").to_pylist()):
-                if p is not None:
-                    pts.setdefault(t, {})[L.matches_owner(ent)] = p
-    out = {}
-    for t, v in fs.items():
-        if len(v) < 4 or not v["estimators"]:
-            continue
-        ends = pts.get(t, {})
-        owner = L.GT if L.GT in ends else next(iter(ends), None)
-        xy = np.asarray(ends[owner], float).reshape(-1, 2) if owner else np.zeros((0, 2))
-        size_a = tuple(int(s) for s in v["size_a"])
-        n = len(xy) // 2
-        out[t] = PairFs(list(v["estimators"]), np.asarray(v["F"], float).reshape(-1, 3, 3), size_a, tuple(int(s) for s in v["size_b"]),
-                        xy[:n], xy[n:] - L.offset_b(size_a))
-    return out
-
-
-def store_ids(path: str | Path) -> tuple[str, str]:
-    """(application id, recording id) of the recording in the file."""
-    s = open_rrd(path).recordings()[0]
-    return s.application_id, s.recording_id

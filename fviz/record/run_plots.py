@@ -13,6 +13,8 @@ from fviz.geometry import (
     AUC_THRESHOLDS_DEG, NSGD_RECALL_THRESHOLD, describe_epipole, epipoles, pose_auc, rotation_angle_deg,
 )
 from fviz.record import layout as L
+from fviz.record.charts import CURVE_GAP, CURVE_H, CURVE_W
+from fviz.record.plots import LOG_FLOOR, TRACK_FLOOR, log_values, series_range
 from fviz.record.marks import Colors, names_of, rgb
 
 
@@ -109,7 +111,7 @@ def log_series(rec, result: PairResult, motion: bool = True) -> None:
         values = [r.metrics.get(key, np.nan) if not r.error else np.nan for r in result.estimators]
         rec.log(L.metric(key), rr.Scalars(values))
         if key in L.LOG_METRICS:
-            rec.log(L.metric_plot(key), rr.Scalars(L.log_values(values)))
+            rec.log(L.metric_plot(key), rr.Scalars(log_values(values)))
     for key, values in (motion_values(result).items() if motion else ()):
         rec.log(L.motion(key), rr.Scalars(values))
 
@@ -137,12 +139,12 @@ def ranges_of_values(values: dict[str, dict[str, Sequence[float]]]) -> dict[str,
     for path, per in values.items():
         key = path.removeprefix("metrics/")
         if path.startswith("motion/"):
-            out[path] = L.series_range(per, L.TRACK_FLOOR.get(path.removeprefix("motion/"), 1e-3))
+            out[path] = series_range(per, TRACK_FLOOR.get(path.removeprefix("motion/"), 1e-3))
         elif key in L.LOG_METRICS:
-            logs = {n: L.log_values(np.where(np.asarray(v, float) > L.LOG_FLOOR, v, np.nan)) for n, v in per.items()}
-            out[L.metric_plot(key)] = L.series_range(logs, 0.1, cut=False)
+            logs = {n: log_values(np.where(np.asarray(v, float) > LOG_FLOOR, v, np.nan)) for n, v in per.items()}
+            out[L.metric_plot(key)] = series_range(logs, 0.1, cut=False)
         elif key in L.SERIES_METRICS:
-            out[path] = L.series_range(per, zero=True, cut=False)
+            out[path] = series_range(per, zero=True, cut=False)
     return out
 
 
@@ -190,32 +192,32 @@ def log_curves(rec, per_pair: dict[str, dict[str, Sequence[float]]], colors: Col
         per = {n: v for n, v in per_pair.get(key, {}).items() if n != L.GT}
         if not per:
             continue
-        x0 = i * (L.CURVE_W + L.CURVE_GAP)
+        x0 = i * (CURVE_W + CURVE_GAP)
         u = np.log10(thresholds) if log_x else thresholds
 
         def screen_x(t: float) -> float:
-            return x0 + L.CURVE_W * ((np.log10(t) if log_x else t) - u[0]) / (u[-1] - u[0])
+            return x0 + CURVE_W * ((np.log10(t) if log_x else t) - u[0]) / (u[-1] - u[0])
 
         recall = {n: cumulative_curve(v, thresholds) for n, v in per.items()}
-        strips = [np.stack([screen_x(thresholds), L.CURVE_H * (1 - r)], -1) for r in recall.values()]
+        strips = [np.stack([screen_x(thresholds), CURVE_H * (1 - r)], -1) for r in recall.values()]
         lo, hi = float(thresholds[0]), float(thresholds[-1])
         ticks_x = ([10.0**k for k in range(math.ceil(math.log10(lo) - 1e-9), math.floor(math.log10(hi) + 1e-9) + 1)]
                    if log_x else list(np.linspace(lo, hi, 5)))
-        axes = [[(x0, 0.0), (x0, L.CURVE_H), (x0 + L.CURVE_W, L.CURVE_H)]]
+        axes = [[(x0, 0.0), (x0, CURVE_H), (x0 + CURVE_W, CURVE_H)]]
         tick_pos, tick_labels = [], []
         for t in ticks_x:
-            axes.append([(screen_x(t), L.CURVE_H), (screen_x(t), L.CURVE_H + 6)])
-            tick_pos.append((screen_x(t), L.CURVE_H + 22))
+            axes.append([(screen_x(t), CURVE_H), (screen_x(t), CURVE_H + 6)])
+            tick_pos.append((screen_x(t), CURVE_H + 22))
             tick_labels.append(f"{t:g}")
         for y in (0.0, 0.5, 1.0):
-            axes.append([(x0 - 6, L.CURVE_H * (1 - y)), (x0, L.CURVE_H * (1 - y))])
-            tick_pos.append((x0 - 30, L.CURVE_H * (1 - y)))
+            axes.append([(x0 - 6, CURVE_H * (1 - y)), (x0, CURVE_H * (1 - y))])
+            tick_pos.append((x0 - 30, CURVE_H * (1 - y)))
             tick_labels.append(f"{y:.0%}")
-        marks = [[(screen_x(t), 0.0), (screen_x(t), L.CURVE_H)] for t, _ in CURVE_MARKS.get(key, ())]
+        marks = [[(screen_x(t), 0.0), (screen_x(t), CURVE_H)] for t, _ in CURVE_MARKS.get(key, ())]
         for t, label in CURVE_MARKS.get(key, ()):  # above the panel, below its title
             tick_pos.append((screen_x(t), -24.0))
             tick_labels.append(label)
-        tick_pos.append((x0 + L.CURVE_W / 2, -52.0))
+        tick_pos.append((x0 + CURVE_W / 2, -52.0))
         tick_labels.append(f"share of the pairs with {title} < x" + (" (log x)" if log_x else ""))
         rec.log(f"{L.CURVES}/{key}",
                 rr.LineStrips2D(strips + axes + marks, colors=[rgb(colors[n]) for n in recall] + [white] * len(axes) + [grey] * len(marks),
@@ -225,5 +227,5 @@ def log_curves(rec, per_pair: dict[str, dict[str, Sequence[float]]], colors: Col
                              recall=np.concatenate(list(recall.values()))), static=True)
     shown = {n: c for n, c in colors.items() if n != L.GT}
     figures = {n: curve_figures(per_pair, n) for n in shown}
-    log_legend(rec, shown, f"{L.CURVES}/legend", (0.0, L.CURVE_H + 70.0),
+    log_legend(rec, shown, f"{L.CURVES}/legend", (0.0, CURVE_H + 70.0),
                labels={n: f"{n}: {f}" if f else n for n, f in figures.items()})

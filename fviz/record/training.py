@@ -80,6 +80,7 @@ def log_training_step(rec: rr.RecordingStream | None, step: int, pairs: Sequence
     from fviz.geometry import clip_lines, epipoles, lines_in_a, lines_in_b, symmetric_epipolar_distance
     from fviz.record import layout as L
     from fviz.record.marks import epipole_marks, log_marks
+    from fviz.record.placement import match_points, offset_b
     from fviz.record.writer import encode_jpeg
 
     rec = stream(rec)
@@ -108,7 +109,7 @@ def log_training_step(rec: rr.RecordingStream | None, step: int, pairs: Sequence
         sizes = {"a": p.size_a, "b": p.size_b}
         fresh = name not in shown
         if fresh:  # the images and the ground truth once, static
-            rec.log(L.watch(name, "b"), rr.Transform3D(translation=[*L.offset_b(p.size_a), 0.0]), static=True)
+            rec.log(L.watch(name, "b"), rr.Transform3D(translation=[*offset_b(p.size_a), 0.0]), static=True)
             for v, img in (("a", p.image_a), ("b", p.image_b)):
                 rec.log(L.watch(name, L.image(v)), rr.EncodedImage(contents=encode_jpeg(img), media_type="image/jpeg"),
                         static=True)
@@ -125,7 +126,7 @@ def log_training_step(rec: rr.RecordingStream | None, step: int, pairs: Sequence
                           np.tile(colors[who], (n + 2, 1)), np.r_[np.full(n, 0.6), 1.5, 1.5], [""] * n + [label] * 2,
                           [] if arrow is None else [(*arrow, colors[who])], clear=who == L.NET, static=who == L.GT)
         sed = symmetric_epipolar_distance(F, x_a, x_b) if np.isfinite(F).all() and np.abs(F).max() > 0 else np.full(len(x_a), np.nan)
-        rec.log(L.watch(name, "points"), rr.Points2D(L.match_points(x_a, x_b, p.size_a), radii=2.0,
+        rec.log(L.watch(name, "points"), rr.Points2D(match_points(x_a, x_b, p.size_a), radii=2.0,
                                                      class_ids=np.tile(L.residual_classes(sed), 2)))
         out[i] = float(np.median(sed)) if len(sed) else np.nan
         rec.log(L.watch(name, "sed_px"), rr.Scalars(out[i]))

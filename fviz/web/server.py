@@ -73,8 +73,9 @@ class ClickApp:
     the last ``KEEP_EVENTS`` events received, each cut to ``KEEP_EVENT_CHARS`` (both bounded)."""
 
     def __init__(self, path: Path, blueprint: Path | None = None, editor=None, export_to: Path | None = None):
-        from fviz.record.reader import click_pairs, store_ids, timelines
         from fviz.record import layout as L
+        from fviz.record.reader import store_ids, timelines
+        from fviz.record.rebuild import click_pairs
         from fviz.rerun_compat import check_version
 
         check_version()  # another rerun: one line when the server starts, not an error per click
