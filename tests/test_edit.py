@@ -101,7 +101,7 @@ def _rows(path, entity: str):
 
 
 def test_an_edit_redraws_the_pair_and_marks_what_it_excluded(inspected, tmp_path):
-    from fviz.record.reader import click_pairs
+    from fviz.record.rebuild import click_pairs
 
     pair, base = inspected
     path = tmp_path / "edit.rrd"

@@ -166,8 +166,11 @@ def _user_pair(user: dict) -> Pair | None:
 
 
 def _kitti_or_synthetic(kitti_root, sequence, drive, frame, kind, step, cams, synthetic: bool, seed: int) -> Pair:
-    from fviz.api.sources import kitti_pair, synthetic_pair
+    from fviz.api.sources import KINDS, kitti_pair, synthetic_pair
+    from fviz.errors import from_command_line
 
+    if kind not in KINDS:
+        raise FvizError(f"{'--pair' if from_command_line() else 'kind'} {kind!r}: choose one of {', '.join(KINDS)}")
     if synthetic:
         return synthetic_pair(seed, kind=kind)
     root = kitti_root or os.environ.get(KITTI_ROOT_ENV)
