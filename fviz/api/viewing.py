@@ -116,6 +116,15 @@ def open_recording(path: str | Path, *, web: bool = False, web_static: bool = Fa
 
 
 @python_errors
+def clickable(path: str | Path) -> bool:
+    """Whether a recording has pairs with images and F's, where a click in fviz's page draws lines (a run's
+    recording without ``--full`` has none)."""
+    from fviz.record.rebuild import click_pairs
+
+    return bool(click_pairs(Path(path)))
+
+
+@python_errors
 def read_recording(path: str | Path):
     """The pairs and metrics stored in a recording (``fviz summary``): ``items`` (one per pair: ``name``, ``metrics``
     by estimator, ``errors``), ``metrics``, ``timeline``, ``app_id``; ``to_dict()`` is ``fviz summary --json``."""

@@ -33,6 +33,8 @@ WebPort = Annotated[int, typer.Option("--web-port", help="Port of the web viewer
 CLICK_HINT = ("clicks (a point's epipolar lines under every F) need a viewer that sends them: fviz open {path} --web, "
               "or fviz.notebook.open in Jupyter (the native viewer sends none; its probe tab steps through the worst matches)")
 
+NO_CLICKS = "no pair images in this recording (a run's without --full): nothing to click; fviz eval --full records them"
+
 
 def open_recording(
     path: Recording,
@@ -48,7 +50,7 @@ def open_recording(
 
     if api.viewing.open_recording(path, web=web, web_static=web_static, bind=bind, port=port, web_port=web_port, tab=tab):
         print(f"native viewer started on {path}")
-        print(CLICK_HINT.format(path=path))
+        print(CLICK_HINT.format(path=path) if api.viewing.clickable(path) else NO_CLICKS)
 
 
 def _fmt(v: float | None) -> str:

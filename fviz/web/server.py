@@ -410,8 +410,9 @@ def serve_clicks(path: Path, host: str = "127.0.0.1", web_port: int = 9090, blue
     server = PageServer(path, host, web_port, blueprint, editor, export_to).start()
     try:
         what = "; edit the matches with the tools at the top" if editor is not None else ""
-        print(f"web viewer: {server.url}  (click a point of either image for its epipolar lines{what}; Ctrl-C to stop)",
-              flush=True)
+        hint = (f"click a point of either image for its epipolar lines{what}" if server.app.pairs else
+                "no pair images in this recording, nothing to click: eval --full records them")
+        print(f"web viewer: {server.url}  ({hint}; Ctrl-C to stop)", flush=True)
         while True:  # short naps: a signal the kernel hands to a server thread only wakes the main one at its next tick
             time.sleep(0.2)
     except KeyboardInterrupt:
