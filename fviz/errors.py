@@ -34,3 +34,15 @@ def command_line():
 def from_command_line() -> bool:
     """Whether the caller is the ``fviz`` command line (:func:`command_line`)."""
     return _COMMAND_LINE.get()
+
+
+_noted: set[str] = set()  # notes said once per process
+
+
+def note_once(message: str) -> None:
+    """Print ``message`` on stderr, once per process (a source's note, however many pairs it loads)."""
+    import sys
+
+    if message not in _noted:
+        _noted.add(message)
+        print(message, file=sys.stderr)

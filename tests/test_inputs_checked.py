@@ -197,8 +197,11 @@ def test_an_all_zero_model_file_is_no_model_with_a_note(kitti, frames, tmp_path)
 # ------------------------------------------------------------------------------ flags: checked before the work, said
 
 
-def test_a_colmap_model_without_3d_points_says_so_with_the_default_min_shared(strecha_root, capsys):
+def test_a_colmap_model_without_3d_points_says_so_with_the_default_min_shared(strecha_root, capsys, monkeypatch):
+    import fviz.errors
     from fviz.data.colmap import ColmapSource
+
+    monkeypatch.setattr(fviz.errors, "_noted", set())  # said once per process: whatever this worker said before
 
     model = strecha_root / "fountain-P11" / "colmap"
     source = ColmapSource(model, strecha_root / "fountain-P11" / "images", None, 100)  # --min-shared 100 or none

@@ -74,10 +74,11 @@ def test_tabs_overview_one_per_estimator_and_probe(inspected):
     assert list(tabs) == ["overview", *ESTIMATORS, "probe"]
     for name in ESTIMATORS:
         # both images, the matches (in its classes: the override below), its lines and epipole, the ground
-        # truth's lines, and a click's marks (drawn live by the viewers that send clicks): nothing else
+        # truth's lines, a click's marks and the matches an edit excluded (drawn live by the viewers that send
+        # clicks and edits): nothing else
         assert sorted(tabs[name]) == sorted(["+ a/image", "+ b/image", f"+ {L.matches('gt')}", f"+ a/est/{name}/epilines",
                                              f"+ b/est/{name}/epilines", "+ a/est/gt/epilines", "+ b/est/gt/epilines",
-                                             f"+ {L.click('a')}/**", f"+ {L.click('b')}/**"])
+                                             f"+ {L.click('a')}/**", f"+ {L.click('b')}/**", f"+ {L.EXCLUDED}"])
         assert not any(other in q for q in tabs[name] for other in ESTIMATORS if other != name)
     assert {f"+ {L.matches('gt')}", "+ a/est/gt/**", "+ a/epipoles", "+ b/epipoles"} <= set(tabs["overview"])
     assert not any(f"/est/{e}" in q for q in tabs["overview"] for e in ESTIMATORS)

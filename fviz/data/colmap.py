@@ -28,7 +28,7 @@ import numpy as np
 from fviz.data.images import make_pair
 from fviz.data.pairsfile import pair_range, read_pairs
 from fviz.data.pair import Pair, PairId
-from fviz.errors import FvizError
+from fviz.errors import FvizError, note_once
 from fviz.geometry import fundamental_from_motion, normalize
 
 SOURCE = "colmap"
@@ -264,17 +264,6 @@ def covisible_pairs(rec, min_shared: int) -> list[tuple[int, int]]:
     return sorted(k for k, n in shared.items() if n >= min_shared)
 
 
-_noted: set[str] = set()
-
-
-def _note_once(message: str) -> None:
-    import sys
-
-    if message not in _noted:
-        _noted.add(message)
-        print(message, file=sys.stderr)
-
-
 class ColmapSource:
     """The pairs of a COLMAP model (see the module doc), with ``pair_ids``, ``load``, ``ground_truth``."""
 
@@ -303,7 +292,7 @@ class ColmapSource:
         if len(rec.points3D) == 0:
             out = list(combinations(sorted(self.views), 2))
             # given or the default (the flag cannot tell an explicit 100 from none): co-visibility cannot select pairs
-            _note_once(f"note: --colmap {self.model} has no 3D points (points3D is empty): all {len(out)} pairs of its "
+            note_once(f"note: --colmap {self.model} has no 3D points (points3D is empty): all {len(out)} pairs of its "
                        f"{len(self.views)} images are taken and --min-shared {min_shared} does not apply "
                        "(select pairs with --pairs FILE or --frames A:B)")
             return out

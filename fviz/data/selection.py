@@ -11,9 +11,8 @@ import numpy as np
 
 from fviz.data.kitti import PAIR_KINDS
 from fviz.data.pair import PairId
-from fviz.errors import FvizError
+from fviz.errors import FvizError, note_once
 
-_noted: set[str] = set()  # notes said once per process
 
 
 def user_source_conflict(pairs, colmap) -> str:
@@ -155,14 +154,6 @@ def _range_text(r: tuple[int | None, int | None]) -> str:
     return f"{'' if r[0] is None else r[0]}:{'' if r[1] is None else r[1]}"
 
 
-def _note_once(message: str) -> None:
-    import sys
-
-    if message not in _noted:
-        _noted.add(message)
-        print(message, file=sys.stderr)
-
-
 class KittiSource:
     """Pairs of one KITTI odometry sequence or raw drive."""
 
@@ -185,7 +176,7 @@ class KittiSource:
             common = min(self.ds.frame_counts[c] for c in cams)
             if common < n:
                 short = min(cams, key=lambda c: self.ds.frame_counts[c])
-                _note_once(f"note: {self.ds.image_folder(short)} of {self.ds.name} has frames 0..{common - 1} only: "
+                note_once(f"note: {self.ds.image_folder(short)} of {self.ds.name} has frames 0..{common - 1} only: "
                            f"the {n - common} later frames of the other cameras are left out (select them with --frames)")
                 n = common
         start, end = 0 if start is None else start, n if end is None else end
