@@ -53,13 +53,15 @@ class _Noting:
         return getattr(self.rec, name)
 
 
-def log_pair_into(rec, pair, result, lines: int, probe: int, probe_by: str | None, index: int, blueprint: bool) -> None:
-    """One pair at ``pair`` = index of ``rec`` (see the module docstring), the other pairs' entities cleared there."""
+def log_pair_into(rec, pair, result, lines: int, probe: int, probe_by: str | None, index: int, blueprint: bool,
+                  legend: bool = True) -> None:
+    """One pair at ``pair`` = index of ``rec`` (see the module docstring), the other pairs' entities cleared there;
+    the residual legend too unless ``legend`` is False."""
     from fviz.record.writer import log_pair_recording, suspect_notice
 
     state = _streams.setdefault(rec, _Logged())
     noting = _Noting(rec)
-    log_pair_recording(noting, pair, result, lines, probe, probe_by, index, many=True)
+    log_pair_recording(noting, pair, result, lines, probe, probe_by, index, many=True, legend=legend)
     state.paths[index], state.cleared[index] = noting.paths, set()
     state.sizes[index] = (tuple(pair.size_a), tuple(pair.size_b))
     state.names.update(dict.fromkeys(r.name for r in result.estimators))

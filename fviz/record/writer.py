@@ -1097,12 +1097,12 @@ def pair_blueprint(pair: Pair, result: PairResult):
 
 
 def log_pair_recording(rec, pair: Pair, result: PairResult, n_lines: int = 30, probe_steps: int = PROBE_STEPS,
-                       probe_by: str | None = None, index: int = 0, many: bool = False) -> int:
-    """Everything ``inspect pair`` records of one pair into ``rec`` at ``pair`` = index: legend, images,
-    lines, epipoles, summary, comparison, and the ``probe`` timeline (``many``: see :func:`log_pair`). -> the probe steps."""
+                       probe_by: str | None = None, index: int = 0, many: bool = False, legend: bool = True) -> int:
+    """Everything ``inspect pair`` records of one pair into ``rec`` at ``pair`` = index: ``legend``, images, lines,
+    epipoles, summary, comparison, and the ``probe`` timeline (``many``: see :func:`log_pair`). -> the probe steps."""
     colors = L.estimator_colors(_names(result))
     steps = len(probe_walk(pair, result, probe_by, probe_steps)[1])  # checks probe_by before logging
-    log_static(rec, _names(result))
+    log_static(rec, _names(result), legend=legend)
     rec.set_time(L.PROBE_TIMELINE, sequence=0)
     log_pair(rec, index, pair, result, n_lines, colors, steps, many=many)
     log_probe(rec, index, pair, result, probe_steps, probe_by, colors)
