@@ -33,14 +33,15 @@ class EditSession:
     pair: the :class:`fviz.Pair`; base: its :class:`fviz.evaluate.PairResult` on every match; estimate(keep (N,) bool
     over base's matches, settings {estimator: {"threshold": px, "max_iters": n}}) -> the PairResult of that edit;
     rec, index: where each result is drawn (None: nowhere); clicks: the viewer's ClickSession, pointed at each new
-    result; lines, probe: as :func:`fviz.log_result`'s."""
+    result; lines, probe: as :func:`fviz.log_result`'s; legend: draw the residual legend with each result (False: the
+    viewer has it from the recording, as fviz's page does)."""
 
     def __init__(self, pair, base, estimate: Callable[[np.ndarray, dict], Any], rec=None, index: int = 0, clicks=None,
-                 lines: int = 30, probe: int = 20):
+                 lines: int = 30, probe: int = 20, legend: bool = True):
         if base.matches is None:
             raise FvizError("result: it has no matches to edit")
         self.pair, self.base, self.estimate = pair, base, estimate
-        self.rec, self.index, self.clicks, self.lines, self.probe = rec, index, clicks, lines, probe
+        self.rec, self.index, self.clicks, self.lines, self.probe, self.legend = rec, index, clicks, lines, probe, legend
         self.excluded = np.zeros(len(base.matches), bool)
         self.settings: dict[str, dict[str, float]] = {}
         self.result = base
@@ -157,21 +158,27 @@ class EditSession:
 
     def draw(self) -> None:
         """The current result at ``index`` of ``rec`` (its pair's entities replaced), the excluded matches as grey
-        crosses, and the viewer's clicks pointed at the new F's."""
+        crosses, and the viewer's clicks pointed at the new F's (the last one drawn again under them)."""
         if self.clicks is not None:
-            from fviz.interactive import pair_fs
+            from fviz.interactive import click, pair_fs
 
             fs = pair_fs(self.result, self.pair.size_a, self.pair.size_b)
             fs.x_a, fs.x_b = self.base.matches.x_a, self.base.matches.x_b  # clicks name the base's match numbers
             self.clicks.pairs[self.index] = fs
+            c = self.clicks.last
+            if c is not None and self.clicks.index == self.index:  # its lines and residuals were the old F's
+                self.clicks.last = click(fs, c.view, c.point, match=c.match, snap=False)
+                self.clicks.log(self.index, fs, self.clicks.last)
         if self.rec is None:
             return
         import rerun as rr
 
         from fviz.record.stream_pairs import log_pair_into
 
-        log_pair_into(self.rec, self.pair, self.result, self.lines, self.probe, None, self.index, True, redraw=True)
+        log_pair_into(self.rec, self.pair, self.result, self.lines, self.probe, None, self.index, True, redraw=True,
+                      legend=self.legend)
         m, out = self.base.matches, np.flatnonzero(self.excluded)
+        self.rec.set_time(L.PROBE_TIMELINE, sequence=0)  # the probe's walk left it at its last step: unseen before it
         if len(out):
             labels = [f"match {i} (excluded)" for i in out] * 2
             self.rec.log(L.EXCLUDED, rr.Points2D(match_points(m.x_a[out], m.x_b[out], self.pair.size_a), colors=EXCLUDED_COLOR,

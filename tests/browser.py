@@ -138,14 +138,17 @@ def listening(procs: list) -> set[tuple[str, int]]:
 
 
 class WebServer:
-    """``fviz open FILE --web --web-port W [extra]`` on a free port (page and WebSocket), until ``close()``.
+    """``fviz open FILE --web --web-port W [extra]`` on a free port (page and WebSocket), until ``close()``;
+    ``command``: fviz's arguments in place of ``open FILE`` (``("inspect", "pair", ...)``: inspect's page, whose URL
+    it prints once the pair is evaluated and recorded).
 
     url: the URL it printed (with its token); stderr: what it wrote there (after close)."""
 
-    def __init__(self, recording: Path, *extra: str, timeout: float = 120):
+    def __init__(self, recording: Path | None, *extra: str, timeout: float = 120, command=None):
         self.web_port = free_port()
+        args = [str(a) for a in command] if command is not None else ["open", str(recording)]
         self.proc = subprocess.Popen(
-            [*FVIZ, "open", str(recording), "--web", "--web-port", str(self.web_port), *extra],
+            [*FVIZ, *args, "--web", "--web-port", str(self.web_port), *extra],
             stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
         )
         self.lines: list[str] = []
@@ -156,7 +159,7 @@ class WebServer:
             end = time.monotonic() + timeout
             while not any("http://" in line for line in self.lines):
                 if self.proc.poll() is not None or time.monotonic() > end:
-                    raise RuntimeError(f"fviz open --web printed no URL (exit {self.proc.poll()}): "
+                    raise RuntimeError(f"fviz {' '.join(args[:2])} --web printed no URL (exit {self.proc.poll()}): "
                                        f"{self.proc.stderr.read() if self.proc.poll() is not None else ''}")
                 time.sleep(0.05)
             self.url = next(w for line in self.lines for w in line.split() if w.startswith("http://"))

@@ -117,6 +117,7 @@ def test_an_edit_redraws_the_pair_and_marks_what_it_excluded(inspected, tmp_path
         assert np.allclose(_unit(F), _unit(ed.result.get(name).F), atol=1e-9), name
     (points,) = [b for b in _rows(path, L.EXCLUDED) if "Points2D:positions" in b.schema.names]
     xy = np.array(points.column("Points2D:positions").to_pylist()[-1])
+    assert points.column(L.PROBE_TIMELINE).to_pylist()[-1] == 0  # seen from the probe's first step on (where it opens)
     n_out = int(ed.excluded.sum())
     assert xy.shape == (2 * n_out, 2)  # both ends of every excluded match, over both images
     assert np.allclose(xy[:n_out], base.matches.x_a[ed.excluded])
@@ -134,17 +135,12 @@ def test_the_pages_edit_tools(inspected, tmp_path):
     """The page's socket: the tools' status first; a click names its match; toggle, a box of two clicks, a residual
     cut, a threshold, reset and export each answered with the redrawn pair's bytes and the status; bad commands are
     one-line errors."""
+    from fviz.api.viewing import page_editor
     from fviz.web.server import ClickApp
 
     pair, base = inspected
     path = fviz.save_recording(tmp_path / "pair.rrd", pair, base)
-
-    def editor(rec, clicks):
-        ed = fviz.edit(pair, base, rec)
-        ed.clicks = clicks
-        return ed
-
-    app = ClickApp(path, editor=editor, export_to=tmp_path / "pair.edited")
+    app = ClickApp(path, editor=page_editor(pair, base), export_to=tmp_path / "pair.edited")
     hello, answer = app.new_connection()
     (tools,) = [json.loads(t) for t in hello]
     assert tools["fviz"] == "edit" and tools["excluded"] == 0 and tools["fs"] == ["gt", "8point", "ransac", "magsac"]
@@ -158,8 +154,13 @@ def test_the_pages_edit_tools(inspected, tmp_path):
     j = 17
     clicked = [json.loads(o) for o in answer(_selection("a", pair, base.matches.x_a[j])) if isinstance(o, str)]
     assert clicked == [{"fviz": "click", "match": j}]
-    s = status(answer(json.dumps({"fviz_edit": {"op": "toggle", "match": j}})))
+    out = answer(json.dumps({"fviz_edit": {"op": "toggle", "match": j}}))
+    s = status(out)
     assert s["excluded_matches"] == [j] and s["kept"] == base.n_matches - 1
+    (tmp_path / "redraw.rrd").write_bytes(out[0])
+    drawn = {e for e in ("", L.matches("gt"), L.EXCLUDED, L.click("a")) if _rows(tmp_path / "redraw.rrd", e)}
+    # the legend stays the file's (logged again from the page's stream, the web viewer loses it); the click redrawn
+    assert drawn == {L.matches("gt"), L.EXCLUDED, L.click("a")}, drawn
     box = [json.loads(o)["text"] for o in answer(json.dumps({"fviz_edit": {"op": "box"}}))]
     assert "two corners" in box[0]
     lo, hi = np.array([100.0, 150.0]), np.array([400.0, 300.0])
@@ -206,6 +207,9 @@ def test_the_notebook_viewer_edits(inspected, tmp_path):
     assert r.n_matches == base.n_matches - 1 and v.result is r
     r = v.exclude_above(1.0, under="magsac")
     assert r.get("8point").metrics["trans_err_deg"] < 10.0
+    last = v.session.last  # the click shown, drawn again under the new F's
+    assert last.match == 5 and np.isclose(last.residuals[last.names.index("8point")],
+                                          symmetric_epipolar_distance(r.get("8point").F, base.matches.x_a[5:6], base.matches.x_b[5:6])[0])
     c = v.click("a", *base.matches.x_a[5])  # an excluded match still clicks: its lines under the new F's
     assert c.match == 5 and np.isclose(c.residuals[c.names.index("8point")],
                                         symmetric_epipolar_distance(r.get("8point").F, base.matches.x_a[5:6], base.matches.x_b[5:6])[0])

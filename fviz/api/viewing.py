@@ -32,14 +32,22 @@ def serve(path: Path, bind: str, port: int, web_port: int, blueprint: Optional[P
     elif pair is None:
         serve_clicks(path, bind, web_port, blueprint)
     else:
-        from fviz.api.editing import edit
+        serve_clicks(path, bind, web_port, blueprint, page_editor(pair, result, lines, probe), Path(path).with_suffix(".edited"))
 
-        def editor(rec, clicks):
-            session = edit(pair, result, rec, lines=lines, probe=probe)
-            session.clicks = clicks
-            return session
 
-        serve_clicks(path, bind, web_port, blueprint, editor, Path(path).with_suffix(".edited"))
+def page_editor(pair, result, lines: int = 30, probe: int = 20):
+    """The page's edit tools on ``result`` (inspect's, of ``pair``): ``editor(rec, clicks)`` -> an
+    :class:`fviz.editing.EditSession` drawing into ``rec``, the page's stream, with its ``clicks``."""
+    from fviz.api.editing import edit
+
+    def editor(rec, clicks):
+        session = edit(pair, result, rec, lines=lines, probe=probe)
+        # the page's viewer has the legend from the file; logged again from this stream, Rerun 0.41's web viewer
+        # drops it and colours the keypoints by class id at random
+        session.clicks, session.legend = clicks, False
+        return session
+
+    return editor
 
 
 def tab_blueprint(path: Path, tab: str) -> Path:

@@ -185,15 +185,16 @@ def pair_blueprint(pair: Pair, result: PairResult):
 
 
 def log_pair_recording(rec, pair: Pair, result: PairResult, n_lines: int = 30, probe_steps: int = PROBE_STEPS,
-                       probe_by: str | None = None, index: int = 0, many: bool = False, redraw: bool = False) -> int:
+                       probe_by: str | None = None, index: int = 0, many: bool = False, redraw: bool = False,
+                       legend: bool = True) -> int:
     """Everything ``inspect pair`` records of one pair into ``rec`` at ``pair`` = index: legend, images,
     lines, epipoles, summary, comparison, and the ``probe`` timeline (``many``: see :func:`log_pair`). ``redraw``: the
-    pair is logged there already (an edit of its matches): neither its images nor the static entities again.
-    -> the probe steps."""
+    pair is logged there already (an edit of its matches): neither its images nor the static entities again;
+    ``legend`` False: no residual legend (a viewer that has it from the file). -> the probe steps."""
     colors = L.estimator_colors(names_of(result))
     steps = len(probe_walk(pair, result, probe_by, probe_steps)[1])  # checks probe_by before logging
     if not redraw:
-        log_static(rec, names_of(result))
+        log_static(rec, names_of(result), legend=legend)
     rec.set_time(L.PROBE_TIMELINE, sequence=0)
     log_pair(rec, index, pair, result, n_lines, colors, steps, many=many, images=not redraw)
     log_probe(rec, index, pair, result, probe_steps, probe_by, colors)

@@ -54,10 +54,10 @@ class _Noting:
 
 
 def log_pair_into(rec, pair, result, lines: int, probe: int, probe_by: str | None, index: int, blueprint: bool,
-                  redraw: bool = False) -> None:
-    """One pair at ``pair`` = index of ``rec`` (see the module docstring), the other pairs' entities cleared there.
-    ``redraw``: the same pair again, its matches edited (:mod:`fviz.editing`): its images stay; what it drew before
-    and not now (a failed estimator's lines) is cleared."""
+                  redraw: bool = False, legend: bool = True) -> None:
+    """One pair at ``pair`` = index of ``rec`` (see the module docstring), the other pairs' entities cleared there;
+    the residual legend too unless ``legend`` is False. ``redraw``: the same pair again, its matches edited
+    (:mod:`fviz.editing`): its images stay; what it drew before and not now (a failed estimator's lines) is cleared."""
     import rerun as rr
 
     from fviz.record.pair_recording import log_pair_recording
@@ -66,7 +66,7 @@ def log_pair_into(rec, pair, result, lines: int, probe: int, probe_by: str | Non
     state = _streams.setdefault(rec, _Logged())
     noting = _Noting(rec)
     redraw = redraw and index in state.paths
-    log_pair_recording(noting, pair, result, lines, probe, probe_by, index, many=True, redraw=redraw)
+    log_pair_recording(noting, pair, result, lines, probe, probe_by, index, many=True, redraw=redraw, legend=legend)
     if redraw:
         kept = {L.image(v) for v in L.VIEWS} & state.paths[index]
         for path in sorted(state.paths[index] - noting.paths - kept):
