@@ -4,7 +4,7 @@ the matches kept and redraws what depends on them (lines, epipoles, residual col
 
 :class:`EditSession` holds the pair, its result on every match (``base``) and the edit (``excluded``, ``settings``);
 ``estimate(keep, settings)`` (:func:`fviz.reestimate`, given by the API) evaluates an edit. With a recording stream it
-draws each new result at its pair's index, the excluded matches as grey crosses (``layout.EXCLUDED``), and points the
+draws each new result at its pair's index, the excluded matches as grey dots (``layout.EXCLUDED``), and points the
 viewer's clicks (:class:`fviz.interactive.ClickSession`) at the new F's. Match numbers are the base result's
 throughout (a click's ``match``, :meth:`exclude`, the export), so that they do not shift as matches are excluded.
 """

@@ -108,7 +108,7 @@ def edit(pair: Pair, result: PairResult, rec: Any = None, *, index: int = 0, lin
     """An :class:`fviz.editing.EditSession` on ``result``'s matches: ``exclude``, ``exclude_above``, ``exclude_box``,
     ``restore``, ``toggle``, ``set`` (threshold / max_iters), ``reset``, ``export``; each returns the new result
     (:func:`reestimate`) and, with ``rec`` (a ``rerun.RecordingStream``), draws it at ``index`` as
-    :func:`fviz.log_result` does, the excluded matches as grey crosses."""
+    :func:`fviz.log_result` does, the excluded matches as grey dots."""
     from fviz.editing import EditSession
 
     check_result_of(pair, result)

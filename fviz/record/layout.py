@@ -279,7 +279,7 @@ REFERENCE_RADIUS = 1.5  # thicker than every other line (0.9), so that it reads 
 LABELLED = "gt/labelled"  # --gt-matches: the hand-labelled correspondences (see the module docstring)
 LABELLED_RADIUS_PX = 4.0  # screen px: larger than a keypoint, so that they stand out among them
 PAIR_FS, CLICK_TEXT = "pair/fundamental", "click/text"
-EXCLUDED = "edit/excluded"  # the matches a user excluded (fviz.editing): grey crosses over both images, root frame
+EXCLUDED = "edit/excluded"  # the matches a user excluded (fviz.editing): grey dots over both images, root frame
 
 
 def click(view: str) -> str:
