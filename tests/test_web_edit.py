@@ -153,7 +153,8 @@ def save(tmp_path, name: str, rgb: np.ndarray) -> None:
 
 
 def test_exclude_by_residual_toggle_a_clicked_match_and_reset_with_the_pages_tools(kitti_root, tmp_path):
-    from fviz.record.reader import click_pairs, column
+    from fviz.record.reader import column
+    from fviz.record.rebuild import click_pairs
 
     out = tmp_path / "pair.rrd"
     inspect = ("inspect", "pair", "--kitti-root", kitti_root, "--sequence", "00", "--frame", "0", "--pair", "temporal",
