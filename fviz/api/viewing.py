@@ -1,5 +1,5 @@
 """Recordings from Python: open one in a viewer (Rerun's native one, or fviz's web page where a click draws a point's
-epipolar lines), read its pairs and metrics back. ``fviz open``, ``fviz summary`` and ``fviz inspect pair --web``
+epipolar lines), read its pairs and metrics back. ``fviz open``, ``fviz summary`` and ``fviz inspect pair --spawn / --web``
 are clients of these functions. Works on any fviz recording (``inspect``, ``eval``, ``triage``, ``compare``)."""
 
 from __future__ import annotations
@@ -40,6 +40,24 @@ def serve(path: Path, bind: str, port: int, web_port: int, blueprint: Optional[P
             return session
 
         serve_clicks(path, bind, web_port, blueprint, editor, Path(path).with_suffix(".edited"))
+
+
+def check_viewer(spawn: bool, web: bool, bind: str, web_port: int) -> None:
+    """What would stop the viewer later (no display, a busy port) is an error before any work."""
+    from fviz.errors import FvizError
+    from fviz.viewer import check_port_free, has_display
+
+    if spawn and not has_display():
+        raise FvizError("--spawn: no display for the native viewer (DISPLAY and WAYLAND_DISPLAY are unset); use --web")
+    if web:  # fviz's page serves on --web-port alone (--port is --web-static's, which inspect has not)
+        check_port_free(bind, web_port, "--web-port")
+
+
+def spawn(path: Path) -> None:
+    """Rerun's native viewer on ``path`` (returns at once)."""
+    from fviz.viewer import spawn_native
+
+    spawn_native(path)
 
 
 def tab_blueprint(path: Path, tab: str) -> Path:
