@@ -24,6 +24,7 @@ import numpy as np
 from fviz.geometry import clip_lines, lines_in_a, lines_in_b, symmetric_epipolar_distance
 from fviz.record import layout as L
 from fviz.record.clickable import PairFs  # noqa: F401 (re-exported: the public name)
+from fviz.record.marks import ring
 
 SNAP_PX = 6.0  # a click this close to a match end (image pixels, KITTI; wider images scale it) picks that match
 RING_PX = 5.0  # the clicked point's ring and its partner's (KITTI; wider images scale it)
@@ -115,11 +116,6 @@ def click_at(fs: PairFs, position, entity_path: str | None = None, instance_id: 
     return None if picked is None else click(fs, picked[0], picked[2], match=picked[1])
 
 
-def _ring(center: np.ndarray, radius: float, n: int = 20) -> np.ndarray:
-    t = np.linspace(0, 2 * np.pi, n + 1)
-    return center + radius * np.stack([np.cos(t), np.sin(t)], -1)
-
-
 def click_text(c: Click) -> str:
     """Markdown: the point, the match and partner, and per F its residual (SED px)."""
     head = f"**click** in image {c.view} at ({c.point[0]:.1f}, {c.point[1]:.1f})"
@@ -141,7 +137,7 @@ def click_marks(fs: PairFs, c: Click) -> dict[str, tuple[list, list, list, list]
     """Per view: (strips, colours, radii, hover labels) to draw: in the clicked image the point's ring (yellow),
     in the other the lines (each F's colour, the ground truth's thickest) and the partner's ring (yellow)."""
     r, w = RING_PX * fs.scale(), fs.scale()
-    marks = {c.view: ([_ring(c.point, r)], [L.PROBE_COLOR], [1.2 * w], ["clicked" if c.match is None else f"match {c.match}"]),
+    marks = {c.view: ([ring(c.point, r, 20)], [L.PROBE_COLOR], [1.2 * w], ["clicked" if c.match is None else f"match {c.match}"]),
              c.other: ([], [], [], [])}
     strips, colors, radii, labels = marks[c.other]
     for k, name in enumerate(c.names):
@@ -151,7 +147,7 @@ def click_marks(fs: PairFs, c: Click) -> dict[str, tuple[list, list, list, list]
             radii.append((1.6 if name == L.GT else 1.0) * w)
             labels.append(name if c.match is None else f"{name}: {c.residuals[k]:.2f} px")
     if c.partner is not None:
-        strips.append(_ring(c.partner, r))
+        strips.append(ring(c.partner, r, 20))
         colors.append(L.PROBE_COLOR)
         radii.append(1.2 * w)
         labels.append(f"match {c.match}")

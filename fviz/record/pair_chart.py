@@ -11,7 +11,7 @@ from fviz.evaluate import PairResult
 from fviz.geometry import NSGD_RECALL_THRESHOLD
 from fviz.record import layout as L
 from fviz.record.marks import Colors, rgb
-from fviz.record.pair_text import fmt
+from fviz.stats import fmt
 from fviz.record.run_plots import cumulative_curve
 
 
