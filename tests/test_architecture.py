@@ -1,4 +1,4 @@
-"""The house's guards (issue "One house"): the import contract of pyproject.toml (layers that point one way, features
+"""The package's guards: the import contract of pyproject.toml (layers that point one way, features
 below the estimators, no import cycle, function-level imports counted: import-linter reads every import statement),
 ruff's checks and limits, and the modules' sizes. Each guard is shown to fail on a tree that breaks it."""
 
@@ -14,7 +14,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 MAX_LINES = 500
-# modules past MAX_LINES today, each to be split along its concerns (issue 41 §4); a module here may shrink, never grow
+# modules past MAX_LINES today, each to be split along its concerns; a module here may shrink, never grow
 OVERSIZED = {
     "fviz/record/layout.py": 709, "fviz/record/reader.py": 580,
 }
