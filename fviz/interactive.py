@@ -26,6 +26,7 @@ from fviz.record import layout as L
 from fviz.record.placement import screen_unit
 from fviz.record.clickable import PairFs  # noqa: F401 (re-exported: the public name)
 from fviz.record.placement import offset_b
+from fviz.record.marks import ring
 
 # Sizes in screen px (times layout.screen_unit: the same on screen for a KITTI frame and a 3072-px photo)
 SNAP_PX = 6.0  # a click this close to a match end picks that match
@@ -122,11 +123,6 @@ def click_at(fs: PairFs, position, entity_path: str | None = None, instance_id: 
     return None if picked is None else click(fs, picked[0], picked[2], match=picked[1])
 
 
-def _ring(center: np.ndarray, radius: float, n: int = 20) -> np.ndarray:
-    t = np.linspace(0, 2 * np.pi, n + 1)
-    return center + radius * np.stack([np.cos(t), np.sin(t)], -1)
-
-
 def click_text(c: Click) -> str:
     """Markdown: the point, the match and partner, and per F its residual (SED px)."""
     head = f"**click** in image {c.view} at ({c.point[0]:.1f}, {c.point[1]:.1f})"
@@ -150,7 +146,7 @@ def click_marks(fs: PairFs, c: Click) -> dict[str, tuple[list, list, list, list]
     dark halo of its own (:func:`halo_of`), so that the clicked lines stand apart from the static ones."""
     u = screen_unit(fs.size_a)
     name = "clicked" if c.match is None else f"match {c.match}"
-    marks = {c.view: ([_ring(c.point, RING_PX * u)], [RING_COLOR], [RING_LINE_PX * u], [name]), c.other: ([], [], [], [])}
+    marks = {c.view: ([ring(c.point, RING_PX * u, 20)], [RING_COLOR], [RING_LINE_PX * u], [name]), c.other: ([], [], [], [])}
     strips, colors, radii, labels = marks[c.other]
     for k, name in enumerate(c.names):
         if c.inside[k]:
@@ -159,7 +155,7 @@ def click_marks(fs: PairFs, c: Click) -> dict[str, tuple[list, list, list, list]
             radii.append((GT_LINE_PX if name == L.GT else LINE_PX) * u)
             labels.append(name if c.match is None else f"{name}: {c.residuals[k]:.2f} px")
     if c.partner is not None:
-        strips.append(_ring(c.partner, RING_PX * u))
+        strips.append(ring(c.partner, RING_PX * u, 20))
         colors.append(RING_COLOR)
         radii.append(RING_LINE_PX * u)
         labels.append(f"match {c.match}")

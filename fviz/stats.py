@@ -1,5 +1,6 @@
 """Statistics under every layer (numpy only): Wilcoxon's signed-rank test of paired differences, which compare,
-the held-out reports and the ground-truth bias (fviz.diagnose) share; :func:`number`, a JSON figure as a float."""
+the held-out reports and the ground-truth bias (fviz.diagnose) share; :func:`number`, a JSON figure as a float;
+:func:`fmt`, a figure in a table cell."""
 
 from __future__ import annotations
 
@@ -70,3 +71,8 @@ def wilcoxon_signed_rank(d) -> Wilcoxon:
 def number(v) -> float:
     """A JSON number as a float, NaN for null (None): how fviz reads the figures it wrote."""
     return float("nan") if v is None else float(v)
+
+
+def fmt(v: float | None, digits: int = 3, missing: str = "–") -> str:
+    """``v`` to ``digits`` significant digits; ``missing`` for None, NaN and infinities (a cell without a value)."""
+    return missing if v is None or not math.isfinite(v) else f"{v:.{digits}g}"

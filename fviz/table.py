@@ -19,6 +19,7 @@ from pathlib import Path
 
 from fviz.atomic import write_text
 from fviz.errors import FvizError
+from fviz.stats import fmt
 
 NORMS = ("etr", "fbn", "abs")
 CLASSICAL_LABELS = {"8point": "8-point", "lmeds": "LMedS", "ransac": "RANSAC", "7point": "7-point", "magsac": "MAGSAC++",
@@ -120,13 +121,9 @@ def paper_layout_markdown(rectified: dict[str, list[str]], frames: dict[str, dic
     return md
 
 
-def _fmt(v: float | None) -> str:
-    return "" if v is None or not math.isfinite(v) else f"{v:.3g}"
-
-
 def _cell(v) -> str:
     """'ABS / SQR', empty when neither is known."""
-    return "" if not v or all(x is None for x in v) else " / ".join(map(_fmt, v))
+    return "" if not v or all(x is None for x in v) else " / ".join(fmt(x, 3, "") for x in v)
 
 
 def _pair_cells(cells: list[str] | None, norm: str) -> tuple[float | None, float | None]:

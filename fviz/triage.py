@@ -105,7 +105,7 @@ from fviz.estimators.registry import AHEAD, is_oracle, is_run_baseline
 from fviz.evaluate import EVAL_THRESHOLD_PX, metric_unit
 from fviz.findings import IGNORES_FRACTION, IGNORES_MIN_PAIRS, MIN_GT_SPREAD_DEG, Finding, estimator_findings  # noqa: F401 (re-exported)
 from fviz.record import layout as L
-from fviz.stats import number
+from fviz.stats import fmt, number
 from fviz.verdicts import (  # noqa: F401 (re-exported)
     DEGENERATE_FRACTION,
     ERROR,
@@ -291,10 +291,6 @@ def _tag_text(r: Ranked) -> str:
     return ", ".join(t for t, _ in r.tags) or "-"
 
 
-def _fmt(v: float) -> str:
-    return ERROR if not math.isfinite(v) else f"{v:.4g}"
-
-
 def _label(name: str) -> str:
     return f"{name} (oracle: has seen the labels)" if is_oracle(name) else name
 
@@ -312,7 +308,7 @@ def findings_markdown(findings: list[Finding]) -> list[str]:
         "|---|---|---|---|---|---|",
     ]
     for f in findings:
-        lines.append(f"| {_label(f.name)} | {_fmt(f.sed_median)} | {_fmt(f.pose_err_median)} | "
+        lines.append(f"| {_label(f.name)} | {fmt(f.sed_median, 4, ERROR)} | {fmt(f.pose_err_median, 4, ERROR)} | "
                      f"{f.epipole_spread:.3g} ({f.gt_epipole_spread:.3g}) | {f.rotation_spread:.3g} ({f.gt_rotation_spread:.3g}) | "
                      f"{', '.join(t for t, _ in f.flags) or '-'} |")
     for f in findings:
@@ -361,9 +357,9 @@ def triage_markdown(config, ranked: list[Ranked], top: int, by: str, metric: str
     ]
     shown = ranked[:top]
     for r in shown:
-        lines.append(f"| {r.rank} | `{r.key}` | {_fmt(r.value)} | {_fmt(r.pose_err)} | {_tag_text(r)} |")
+        lines.append(f"| {r.rank} | `{r.key}` | {fmt(r.value, 4, ERROR)} | {fmt(r.pose_err, 4, ERROR)} | {_tag_text(r)} |")
     for r in shown:
-        lines += ["", f"### rank {r.rank}: `{r.key}`", "", f"{metric} of {by}: {_fmt(r.value)}"]
+        lines += ["", f"### rank {r.rank}: `{r.key}`", "", f"{metric} of {by}: {fmt(r.value, 4, ERROR)}"]
         lines += [f"- **{t}**: {why}" for t, why in r.tags]
         lines += ["", "```", inspect_command(config, source, r.ref), "```"]
     if any(is_run_baseline(n) for n in config.options.names):

@@ -1,4 +1,4 @@
-"""Many pairs logged with the public API into one stream (``fviz.log_result(rec, pair, result, index=i)``, issue 42)
+"""Many pairs logged with the public API into one stream (``fviz.log_result(rec, pair, result, index=i)``)
 behave as an ``eval --full`` recording's: the layout opens on the ``pair`` timeline; at pair i only pair i's entities
 are live (an F only pair 0 has is cleared after it); each index has its own F's, sizes and keypoints, and a click at
 the time cursor on pair i is answered with pair i's lines (OpenCV's); the views frame every pair, of two sizes.

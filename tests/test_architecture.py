@@ -1,4 +1,4 @@
-"""The house's guards (issue "One house"): the import contract of pyproject.toml (layers that point one way, features
+"""The package's guards: the import contract of pyproject.toml (layers that point one way, features
 below the estimators, no import cycle, function-level imports counted: import-linter reads every import statement),
 ruff's checks and limits, and the modules' sizes. Each guard is shown to fail on a tree that breaks it."""
 
@@ -14,7 +14,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 MAX_LINES = 500
-# modules past MAX_LINES today, each to be split along its concerns (issue 41 §4); a module here may shrink, never grow
+# modules past MAX_LINES today, each to be split along its concerns; a module here may shrink, never grow
 OVERSIZED = {
     "fviz/record/layout.py": 550,
 }
@@ -51,23 +51,7 @@ def test_the_import_contract_catches_an_upward_import_or_a_cycle_inside_a_functi
 # The command line is a client of fviz.api: each command parses its flags and calls the API. What a cli module may
 # import besides fviz.api, fviz.errors and fviz.cli, each with its reason (to move behind fviz.api next; fewer is better).
 CLI_OWN = ("fviz.api", "fviz.errors", "fviz.cli")
-CLI_EXCEPTIONS = {
-    "fviz.cli.inspect": {
-        # the viewer flags (--spawn, --web: a display, a free port) and the probe's names are checked before any work,
-        # the table printed from the result's fields: inspect's own checks and printing, not yet in fviz.api
-        "fviz.atomic": "--out refused before any work when it is a folder or special file",
-        "fviz.estimators.options": "estimators resolved once, before the pair is loaded (a deep model loads once)",
-        "fviz.estimators.registry": "the default estimators' names",
-        "fviz.estimators.sweep": "--probe-by: the per-pair oracle's suffix",
-        "fviz.evaluate": "too few matches: the error after the recording is written; the table's agreement text",
-        "fviz.geometry": "--norm's choices, checked before any work",
-        "fviz.record.layout": "--probe-by: the ground truth's name",
-        "fviz.record.pair_text": "the table's match-precision lines",
-        "fviz.record.probe": "--probe-by score",
-        "fviz.run.prestart": "rerun imported in the background while the features are computed",
-        "fviz.viewer": "--spawn / --web: a display and a free port, checked before any work; the native viewer",
-    },
-}
+CLI_EXCEPTIONS: dict[str, dict[str, str]] = {}
 
 
 def _cli_imports(tree: Path) -> dict[str, list[str]]:

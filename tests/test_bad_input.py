@@ -1,4 +1,4 @@
-"""Issue 9 (layouts, messages, bad numbers): every case through the real command line in a subprocess, on
+"""Bad input (layouts, messages, bad numbers): every case through the real command line in a subprocess, on
 real files. Each bad input is one line ``error: ...`` naming the file or flag, exit 2, no traceback, and
 nothing written; a malformed results line or a user estimator returning junk loses nothing else."""
 

@@ -5,6 +5,9 @@ from __future__ import annotations
 
 import json
 import math
+import os
+import subprocess
+import sys
 
 import pytest
 from browser import WebServer, inspect_recording, listening, run_fviz
@@ -101,3 +104,23 @@ def test_open_rejects_bad_ports(inspected):
     assert r.returncode == 2 and "--port and --web-port" in r.stderr
     r = run_fviz("open", path, "--web", "--port", "70000")
     assert r.returncode == 2 and "--port 70000" in r.stderr
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="a display is an X11/Wayland matter")
+@pytest.mark.parametrize("display", [None, ":97"])
+def test_open_tab_leaves_no_temporary_folder(inspected, tmp_path, display):
+    """Without a display (one-line error) and with one named that no server answers (the viewer starts and
+    exits): no fviz-open-* folder is left in the temporary directory."""
+    import time
+
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    env.update(TMPDIR=str(tmp), **({"DISPLAY": display} if display else {}))
+    r = subprocess.run([sys.executable, "-m", "fviz", "open", str(inspected[0]), "--tab", "overview"],
+                       capture_output=True, text=True, env=env, timeout=300)
+    assert "Traceback" not in r.stderr, r.stderr
+    end = time.monotonic() + 60
+    while list(tmp.glob("fviz-open-*")) and time.monotonic() < end:
+        time.sleep(0.5)
+    assert not list(tmp.glob("fviz-open-*"))

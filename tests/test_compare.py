@@ -193,7 +193,7 @@ def test_wilcoxon_normal_approximation_matches_its_closed_form():
 
 
 def test_each_metric_fails_by_its_own_rule_named_in_the_table(runs):
-    """Issue 28 §2: one threshold (2.0) for every metric said "both fail 49/49" of inlier ratios and never failed NSGD.
+    """One threshold (2.0) for every metric used to say "both fail 49/49" of inlier ratios and never failed NSGD.
     Each metric now has its own rule (fviz.verdicts), named wherever fails are counted; an "error" (no value, eval's
     count) stays apart from "fails" (the metric's verdict)."""
     from fviz import triage
@@ -226,7 +226,7 @@ def test_each_metric_fails_by_its_own_rule_named_in_the_table(runs):
 
 
 def test_the_run_folder_is_given_one_way_everywhere(runs, tmp_path):
-    """`table RUN` and `--out-dir RUN` both work in table, compare and triage (issue 28 §2); two different ones are
+    """`table RUN` and `--out-dir RUN` both work in table, compare and triage; two different ones are
     refused."""
     a, _ = runs
     shutil.copytree(a, tmp_path / "run")
@@ -250,7 +250,7 @@ def index_of(run):
 
 
 def test_listed_pairs_say_where_they_sit_how_to_reopen_them_and_are_plotted(runs, tmp_path):
-    """Issue "screens round two" §6: compare lists each pair where only one side fails with its `fviz inspect pair`
+    """compare lists each pair where only one side fails with its `fviz inspect pair`
     command, says whether those pairs are one stretch of consecutive frames, and writes compare.rrd beside
     compare.md: both sides' values per pair and the one-sided fails, as the CSV has them."""
     from fviz.record.reader import column, text

@@ -1,4 +1,4 @@
-"""Ignored or contradictory inputs get a note or a one-line error, never silence (issue 28 §2): KITTI flags beside a
+"""Ignored or contradictory inputs get a note or a one-line error, never silence: KITTI flags beside a
 user's images, a COLMAP model without 3D points and --min-shared, K whose principal point lies outside its image, the
 same image twice, --pairs without --images, `fviz inspect --kitti-root` (no `pair`), kusvod2's ``{name}_pts.txt``."""
 

@@ -1,4 +1,4 @@
-"""Failures say why, where the user looks (issue 28 §2): eval and triage end with the run's failures grouped by cause,
+"""Failures say why, where the user looks: eval and triage end with the run's failures grouped by cause,
 with counts and one example each, and summary.md / summary.json hold the same groups. Real runs on KITTI frames."""
 
 from __future__ import annotations

@@ -70,7 +70,7 @@ def held_run(tmp_path: Path, out: Path, *extra: str) -> tuple[subprocess.Popen, 
     return proc, inside, go
 
 
-# ------------------------------------------------------------------------------ item 4: special files
+# ------------------------------------------------------------------------------ special files as --out
 
 
 def test_out_through_a_symlink_replaces_its_target(tmp_path):
@@ -123,7 +123,7 @@ def test_out_never_replaces_a_special_file(tmp_path, kind, said, via_link):
     assert leftovers(tmp_path) == []
 
 
-# ------------------------------------------------------------------------------ item 5: run folder lock
+# ------------------------------------------------------------------------------ run folder lock
 
 
 def test_a_second_run_into_a_held_folder_is_refused_naming_the_holder(tmp_path):
@@ -162,7 +162,7 @@ def test_the_lock_of_a_killed_run_is_recovered(tmp_path):
     assert not (out / ".fviz.lock").exists()
 
 
-# ------------------------------------------------------------------------------ item 6: Ctrl-C
+# ------------------------------------------------------------------------------ Ctrl-C
 
 
 def test_ctrl_c_while_the_reports_are_written_keeps_the_previous_recording(tmp_path):
@@ -222,7 +222,7 @@ def test_ctrl_c_anywhere_says_what_was_kept(tmp_path):
     assert leftovers(tmp_path) == []
 
 
-# ------------------------------------------------------------------------------ item 10: disk full
+# ------------------------------------------------------------------------------ disk full
 
 
 def _without_volatile(rows):

@@ -1,4 +1,4 @@
-"""Issue 43 (numbers comparable with the field's), items 1 and 2: the standard pose AUC counts every pair with a
+"""Figures comparable with the field's: the standard pose AUC counts every pair with a
 ground-truth pose, as SuperGlue / LightGlue / glue-factory do (no F, no pose, or a pose undefined for want of
 evaluation matches is an infinite error); the AUC over the pairs with a pose is a second, named figure; the
 ground truth's own row never shows errors, its pairs with too few matches are counted apart as undefined."""

@@ -1,7 +1,7 @@
 """The epipolar geometry written again in torch (the training loop's losses and metrics, the model heads, the synthetic
 scenes' ground truth) against the numpy floor, fviz.geometry, on random batches in float64 and float32, and
-``torch.autograd.gradcheck`` on the differentiable ones in float64 (issue 41: "torch geometry untested against the
-numpy side"). The normalization layers and the reconstruction layer on one pair are in tests/test_models.py."""
+``torch.autograd.gradcheck`` on the differentiable ones in float64. The normalization layers and the reconstruction
+layer on one pair are in tests/test_models.py."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""A ground truth biased over a run (issue "Table 1 like for like", §3): raw KITTI's oxts put the translation
+"""A ground truth biased over a run: raw KITTI's oxts put the translation
 direction ~1 deg to one side of the images' on most pairs. The run says so (summary, the end of eval) where a
 signed-rank test finds it, on shared drive 0002, and not on synthetic scenes (exact ground truth)."""
 

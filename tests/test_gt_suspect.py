@@ -1,4 +1,4 @@
-"""gt-suspect (issue 28 §2) where it used to raise false alarms: the ground truth is suspect only when it explains the
+"""gt-suspect where it used to raise false alarms: the ground truth is suspect only when it explains the
 matches worse than the estimates do, by a margin that grows with its stated accuracy; an epipole far from the image or
 at infinity (sideways motion, rectified stereo) never drives it. Pairs rebuilt from the shared samples: Strecha's
 fountain at half size (its published cameras), KITTI colour stereo, and ground truths made wrong on purpose."""
@@ -87,13 +87,13 @@ def judged(pair, estimators, keypoints=2000):
 
 
 def old_rule_fires(metrics: dict) -> bool:
-    """The epipole test before issue 28: every tight consensus fit more than 6 deg (or 1 deg of rotation) off."""
+    """The epipole test fviz used to make: every tight consensus fit more than 6 deg (or 1 deg of rotation) off."""
     tight = [m for n, m in metrics.items() if n != "gt" and m["inlier_ratio"] >= 0.5 and m["sed_median"] < 0.5]
     return bool(tight) and all(m["epipole_err_deg"] > GT_SUSPECT_DIRECTION_DEG or m["rot_err_deg"] > 1.0 for m in tight)
 
 
 def test_a_strecha_pair_whose_ground_truth_fits_best_is_not_suspect(fountain_half):
-    """Fountain 0 -> 1 with a tight fit whose epipole is 15+ deg off (as MAGSAC++'s was, 21 deg, in the issue): the
+    """Fountain 0 -> 1 with a tight fit whose epipole is 15+ deg off (as MAGSAC++'s was, 21 deg, once): the
     ground truth explains the matches better than that fit, and its epipole lies far outside the images (sideways
     motion), so the direction says nothing: not suspect; MAGSAC and RANSAC agree."""
     pair = first_pair(fountain_half / "pairs.txt", fountain_half)

@@ -1,8 +1,7 @@
-"""Inputs never silently changed or accepted (issue 40, "Inputs silently changed or accepted" and round two's four
-open cases): image arrays of any range, F given as an array or of rank 3, a result logged over another pair, one K
-for images of two sizes, kusvod2's all-zero model file, COLMAP without 3D points, --norm / --probe-by before the work,
-a transposed --T-ab, a .mat file, `fviz table X.rrd`, default recording names with and without ground truth,
-non-finite ground truth, a cut JPEG, a cut images.bin, a threshold sweep's oracle without ground truth.
+"""Inputs never silently changed or accepted: image arrays of any range, F given as an array or of rank 3, a result
+logged over another pair, one K for images of two sizes, kusvod2's all-zero model file, COLMAP without 3D points,
+--norm / --probe-by before the work, a transposed --T-ab, a .mat file, `fviz table X.rrd`, default recording names
+with and without ground truth, non-finite ground truth, a cut JPEG, a cut images.bin, a threshold sweep's oracle without ground truth.
 
 Every error is one line naming the argument or file (exit 2 on the command line); every change of a value a note."""
 
@@ -290,7 +289,7 @@ def test_default_recording_names_keep_runs_with_and_without_ground_truth(frames,
     assert default_out("k/00", "pose") == default_out("k/00") != default_out("k/00", "none")
 
 
-# ------------------------------------------------------------------------------ round two's four open cases
+# ---------------------------------------------------- non-finite ground truth, cut files, a sweep without ground truth
 
 
 @pytest.mark.parametrize("flag, value, fragment", [

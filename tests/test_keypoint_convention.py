@@ -1,4 +1,4 @@
-"""Issue 43, item 3: fviz's own keypoints at the convention it states (pixel centres at integers), measured on
+"""fviz's own keypoints at the convention it states (pixel centres at integers), measured on
 Gaussian blobs drawn at known sub-pixel centres. OpenCV's SIFT with its default first-octave upscaling put them
 +0.25 px right and down; a features.h5 written with those keypoints is never read back as the new ones."""
 

@@ -86,7 +86,7 @@ def test_tabs_overview_one_per_estimator_and_probe(inspected):
 
 
 def test_recording_stays_small(inspected):
-    """Issue "The main screen": an inspect recording with three estimators <= 250 KB (match positions stored
+    """An inspect recording with three estimators <= 250 KB (match positions stored
     once, no footer, JPEG 50), plus the verdict above the tabs (~5 KB of blueprint) and the probe's two zoomed views
     (12 KB: each view of the blueprint costs ~5 KB of the file). Deterministic: the same data and code write the
     same bytes, give or take the JPEG encoder's version."""

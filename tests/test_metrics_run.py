@@ -1,4 +1,4 @@
-"""Issue 8 end to end on the real samples, through the real command line: the standard figures of a run
+"""A run's figures end to end on the real samples, through the real command line: the standard figures of a run
 (summary.json, summary.md, the table eval prints), the baselines that have not seen the labels, triage's
 estimator findings and tags on data built to trigger them, and triage reusing any finished run."""
 
@@ -144,7 +144,7 @@ def test_triage_findings_flag_the_constant_estimators_only(run):
     assert "ignores-input" in flagged["oracle-mean"] and "ignores-input" in flagged["mean-01"]
     # MAGSAC's epipole jitters 1.5-1.9 deg against the truth's 0.27 deg over these 7 pairs (400-800 keypoints): its
     # bootstrap interval spans 0 or not by chance (it reached below 0.1 once fviz's SIFT moved to the pixel-centre
-    # convention, issue 43), so the flag says "not told apart", never the constants' zero spread
+    # convention), so the flag says "not told apart", never the constants' zero spread
     assert "worse-than-baseline" not in flagged["magsac"]
     magsac = next(line for line in findings.splitlines() if line.startswith("| magsac "))
     assert float(magsac.split("|")[4].split()[0]) > 0.5  # its epipole spread: it reads its input
@@ -177,7 +177,7 @@ def test_baseline_names_are_checked(kitti_root, tmp_path, spec, fragment):
 
 
 def test_readme_eval_then_triage_reuses_the_run(kitti_root, tmp_path):
-    """Issue 9 item 2: the README's flow, then the same flags again, then a merged run."""
+    """The README's flow, then the same flags again, then a merged run."""
     out = tmp_path / "seq00"
     est = ("-e", "8point", "-e", "ransac", "-e", "magsac")
     ok(run_fviz("eval", *seq00(kitti_root, "0:6"), *est, *SMALL, "--out-dir", out, timeout=300))

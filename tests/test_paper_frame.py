@@ -1,4 +1,4 @@
-"""The paper's frame (issue "Table 1 like for like"): rectified KITTI stereo mapped into the unrectified cameras
+"""The paper's frame: rectified KITTI stereo mapped into the unrectified cameras
 of ``calib_cam_to_cam.txt``, checked against an F built straight from K, R, T, on the shared raw drives."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Pose of an F with too few evaluation matches (issue "Table 1 like for like", §3): the decomposition is chosen
+"""Pose of an F with too few evaluation matches: the decomposition is chosen
 with the ground truth's own points where the source knows them (synthetic scenes), never the estimate's matches;
 otherwise the pose is *undefined*, kept apart from failures in the figures."""
 
@@ -34,7 +34,7 @@ def test_without_ground_truth_points_the_pose_is_undefined_not_failed(kitti_root
                     "--eval-threshold", "1e-4", "-e", "magsac", "--workers", "1", "--no-progress", "--out-dir", out, timeout=600)
     assert proc.returncode == 0, proc.stderr
     fig = json.loads((out / "summary.json").read_text())["estimators"]["magsac"]
-    # issue 43: counted apart, and in the field's AUC as failures of the estimate (the matcher gave too few)
+    # counted apart, and in the field's AUC as failures of the estimate (the matcher gave too few)
     assert fig["errors"] == 0 and fig["pose_undefined"] == 2 and fig["with_pose_pairs"] == 0
     assert fig["pose_pairs"] == fig["pairs"] and fig["pose_auc"] == {"5": 0.0, "10": 0.0, "20": 0.0}
     assert "Undefined (too few matches): magsac 2 pairs" in (out / "summary.md").read_text()

@@ -69,7 +69,7 @@ def test_binary_model_reads_as_the_text_one_and_all_pairs_without_points(tmp_pat
     assert same_up_to_sign(a.ground_truth(pid), F_ref, 1e-6)
     proc = run_fviz("inspect", "pair", "--colmap", binary, "--images", fountain() / "images", "--index", "55")
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
-    note, error = proc.stderr.strip().splitlines()  # why every pair is taken (issue 40), then the error
+    note, error = proc.stderr.strip().splitlines()  # why every pair is taken, then the error
     assert note.startswith(f"note: --colmap {binary} has no 3D points") and "--min-shared 100 does not apply" in note
     assert error.startswith("error: --index 55") and "0..54" in error
 

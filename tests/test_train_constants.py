@@ -64,7 +64,7 @@ def test_an_untrained_model_is_no_better_than_the_constant(tmp_path):
 
 
 def test_the_verdict_needs_a_lower_sed_and_a_paired_test_that_finds_it():
-    """The issue's run (1.648 px against 1.651 px, no test finding a difference) is no better than the constant;
+    """A measured run (1.648 px against 1.651 px, no test finding a difference) is no better than the constant;
     beating one constant is not enough; a significant loss is no better either."""
     issue = {"sed_px": 1.648, "mean_f_sed_px": 1.651, "mean_f_p": 0.4, "ahead_sed_px": 1.651, "ahead_p": 0.5}
     assert versus_constants(issue).startswith(NO_BETTER + ": validation median SED 1.648 px vs 1.651 px")

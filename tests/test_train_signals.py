@@ -1,4 +1,4 @@
-"""``fviz train`` as a user runs it: real subprocesses, real signals, real files (issue 9 items 6, 8, 14, 16)."""
+"""``fviz train`` as a user runs it: real subprocesses, real signals, real files."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The basis of a pair's verdict (issue "Diagnoses that hold"): evidence only from fits with spare matches and out of
+"""The basis of a pair's verdict: evidence only from fits with spare matches and out of
 sample, every failure judged, the user's inputs before the ground truth. On Strecha's fountain at half size (its
 published cameras; the pairs file of tests/test_gt_suspect.py), with the user's matches written as a text file the
 way a user writes them: correct, with their columns swapped, at half resolution, and too few."""

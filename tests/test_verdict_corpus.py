@@ -1,6 +1,6 @@
-"""The verdict corpus (benchmarks/verdict_corpus.py, issue 39): pairs of known cause judged by fviz's verdicts. The
+"""The verdict corpus (benchmarks/verdict_corpus.py): pairs of known cause judged by fviz's verdicts. The
 quick corpus (~40 cases, a few seconds) must do no worse than the committed baseline
-(benchmarks/verdict_corpus_baseline.json: per-cause precision and recall, the target figures); the issue's targets
+(benchmarks/verdict_corpus_baseline.json: per-cause precision and recall, the target figures); the targets
 themselves hold (false fine 0 where fviz is given the true ground truth, gt-suspect precision >= 0.95 and recall >= 0.8
 on corruptions that move F_gt's lines, no claim below the minimum)."""
 

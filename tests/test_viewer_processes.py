@@ -99,7 +99,7 @@ def busy_port():
         yield s.getsockname()[1]
 
 
-# ------------------------------------------------------------------------------ item 11
+# ------------------------------------------------------------------------------ the URL printed only once it serves
 
 
 @pytest.mark.parametrize("mode, flag", [("--web", "--web-port"), ("--web-static", "--port"), ("--web-static", "--web-port")])
@@ -148,7 +148,7 @@ def test_rerun_errors_lose_their_ansi_escapes(recording, busy_port):
     assert "\x1b" not in clean and "already in use" in clean
 
 
-# ------------------------------------------------------------------------------ item 12
+# ------------------------------------------------------------------------------ the server dies with fviz
 
 
 def _server_dies_with_fviz(args: list[str], sig: int, mode: str = "--web") -> None:
@@ -183,7 +183,7 @@ def test_inspect_web_server_dies_with_fviz(tmp_path, sig):
                             str(tmp_path / "p.rrd")], sig)
 
 
-# ------------------------------------------------------------------------------ item 13
+# ------------------------------------------------------------------------------ no display
 
 
 def _no_display() -> dict[str, str]:

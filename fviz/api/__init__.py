@@ -28,7 +28,7 @@ __all__ = ["Pair", "PairResult", "load_pair", "pair_from_images", "inspect_pair"
 def __getattr__(name: str):
     if name in _MODULE:
         return getattr(importlib.import_module(f"fviz.api.{_MODULE[name]}"), name)
-    if name in ("pairs", "runs", "training", "viewing", "names", "editing", "sources"):
+    if name in ("pairs", "inspecting", "runs", "training", "viewing", "names", "editing", "sources"):
         return importlib.import_module(f"fviz.api.{name}")
     raise AttributeError(f"module 'fviz.api' has no attribute {name!r}")
 

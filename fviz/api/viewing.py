@@ -1,6 +1,7 @@
 """Recordings from Python: open one in a viewer (Rerun's native one, or fviz's web page where a click draws a point's
-epipolar lines), read its pairs and metrics back. ``fviz open``, ``fviz summary`` and ``fviz inspect pair --web``
-are clients of these functions. Works on any fviz recording (``inspect``, ``eval``, ``triage``, ``compare``)."""
+epipolar lines), read its pairs and metrics back (and ``fviz summary``'s table of them). ``fviz open``, ``fviz summary``
+and ``fviz inspect pair --spawn / --web`` are clients of these functions. Works on any fviz recording (``inspect``,
+``eval``, ``triage``, ``compare``)."""
 
 from __future__ import annotations
 
@@ -48,6 +49,24 @@ def page_editor(pair, result, lines: int = 30, probe: int = 20):
         return session
 
     return editor
+
+
+def check_viewer(spawn: bool, web: bool, bind: str, web_port: int) -> None:
+    """What would stop the viewer later (no display, a busy port) is an error before any work."""
+    from fviz.errors import FvizError
+    from fviz.viewer import check_port_free, has_display
+
+    if spawn and not has_display():
+        raise FvizError("--spawn: no display for the native viewer (DISPLAY and WAYLAND_DISPLAY are unset); use --web")
+    if web:  # fviz's page serves on --web-port alone (--port is --web-static's, which inspect has not)
+        check_port_free(bind, web_port, "--web-port")
+
+
+def spawn(path: Path) -> None:
+    """Rerun's native viewer on ``path`` (returns at once)."""
+    from fviz.viewer import spawn_native
+
+    spawn_native(path)
 
 
 def tab_blueprint(path: Path, tab: str) -> Path:
@@ -121,6 +140,29 @@ def open_recording(path: str | Path, *, web: bool = False, web_static: bool = Fa
             import shutil
 
             shutil.rmtree(blueprint.parent, ignore_errors=True)
+
+
+# Metric columns of the summary table, in this order when present (every metric: --json).
+SUMMARY_METRICS = ("sed_median", "sampson_median", "rot_err_deg", "trans_err_deg", "nsgd", "inlier_ratio",
+                   "epipole_err_deg", "epi_abs", "epi_sqr")
+
+
+def summary_rows(s) -> tuple[list[str], list[str], list[list[list[str]]]]:
+    """``fviz summary``'s table of a :func:`read_recording` summary ``s``: (its metric columns, its other timelines,
+    per item its rows). An item has a row per estimator, the first with the item's index, its other timelines' and its
+    name; the metrics to 4 digits ("-" when unknown); the estimator's error when an item has one."""
+    from fviz.stats import fmt
+
+    cols = [m for m in SUMMARY_METRICS if m in s.metrics]
+    times = sorted({t for it in s.items for t in it.times})
+    errors = any(it.errors for it in s.items)
+    items = []
+    for it in s.items:
+        ests = it.estimators() or ["-"]
+        head = [str(it.index), *(str(it.times.get(n, "")) for n in times), it.name or "-"]
+        items.append([(head if k == 0 else [""] * len(head)) + [est, *(fmt(it.metrics.get(c, {}).get(est), 4, "-") for c in cols)]
+                      + ([it.errors.get(est, "")] if errors else []) for k, est in enumerate(ests)])
+    return cols, times, items
 
 
 @python_errors

@@ -4,7 +4,6 @@ no viewer). Both work on any fviz recording: ``inspect``, ``eval`` and ``triage`
 from __future__ import annotations
 
 import json
-import math
 import sys
 from pathlib import Path
 from typing import Annotated, Optional
@@ -12,10 +11,6 @@ from typing import Annotated, Optional
 import typer
 
 from fviz.cli import options as o
-
-# Metric columns of the summary table, in this order when present (every metric: --json).
-KEY_METRICS = ("sed_median", "sampson_median", "rot_err_deg", "trans_err_deg", "nsgd", "inlier_ratio",
-               "epipole_err_deg", "epi_abs", "epi_sqr")
 
 Recording = Annotated[Path, typer.Argument(help="A .rrd written by fviz (inspect, eval or triage).", show_default=False)]
 
@@ -53,12 +48,6 @@ def open_recording(
         print(CLICK_HINT.format(path=path) if api.viewing.clickable(path) else NO_CLICKS)
 
 
-def _fmt(v: float | None) -> str:
-    if v is None or (isinstance(v, float) and math.isnan(v)):
-        return "-"
-    return f"{v:.4g}"
-
-
 def summary(
     path: Recording,
     as_json: Annotated[bool, typer.Option("--json", help="Print the summary as JSON on stdout (NaN -> null).")] = False,
@@ -74,8 +63,7 @@ def summary(
         json.dump(s.to_dict(), sys.stdout, indent=2)
         sys.stdout.write("\n")
         return
-    cols = [m for m in KEY_METRICS if m in s.metrics]
-    other_times = sorted({t for it in s.items for t in it.times})
+    cols, other_times, items = api.viewing.summary_rows(s)
     t = Table(title=f"{path}  ({s.app_id}; {len(s.items)} item(s) on timeline {s.timeline or '-'}; "
                     f"blueprint {'stored' if s.has_blueprint else 'none'})")
     index_header = "#" if s.timeline in (None, "pair") else s.timeline
@@ -86,17 +74,11 @@ def summary(
     t.add_column("estimator", overflow="fold")
     for c in cols:
         t.add_column(c, justify="right")
-    any_errors = any(it.errors for it in s.items)
-    if any_errors:
+    if any(it.errors for it in s.items):
         t.add_column("error", overflow="fold", style="red")
-    for it in s.items:
-        ests = it.estimators() or ["-"]
-        for k, est in enumerate(ests):
-            head = [str(it.index), *(str(it.times.get(n, "")) for n in other_times), it.name or "-"] if k == 0 \
-                else ["", *[""] * len(other_times), ""]
-            vals = [_fmt(it.metrics.get(c, {}).get(est)) for c in cols]
-            tail = [it.errors.get(est, "")] if any_errors else []
-            t.add_row(*head, est, *vals, *tail, end_section=k == len(ests) - 1)
+    for rows in items:
+        for k, row in enumerate(rows):
+            t.add_row(*row, end_section=k == len(rows) - 1)
     console = Console()
     if not console.is_terminal:  # piped: never wrap or cut, whatever the width
         console = Console(width=max(Console(width=10_000).measure(t).maximum, 80))

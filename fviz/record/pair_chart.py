@@ -12,7 +12,7 @@ from fviz.geometry import NSGD_RECALL_THRESHOLD
 from fviz.record import layout as L
 from fviz.record.charts import BAR_HEAD, BAR_LABEL_X, BAR_PITCH, BAR_WIDTH, CDF_H, COMPARED_METRICS, LABEL_DROP, MATRIX_NAMES_W
 from fviz.record.marks import Colors, rgb
-from fviz.record.pair_text import fmt
+from fviz.stats import fmt
 from fviz.record.run_plots import cumulative_curve
 
 

@@ -14,10 +14,7 @@ from fviz.geometry import NSGD_RECALL_THRESHOLD
 from fviz.record import layout as L
 from fviz.record.placement import below_images
 from fviz.record.marks import names_of, place_tags, rgb
-
-
-def fmt(v: float | None, digits: int = 3) -> str:
-    return "–" if v is None or not np.isfinite(v) else f"{v:.{digits}g}"
+from fviz.stats import fmt
 
 
 SUMMARY_COLUMNS = (("sed_median", "SED px"), ("rot_err_deg", "rot °"), ("trans_err_deg", "trans °"),

@@ -10,7 +10,7 @@ import sys
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any, Iterator, Optional, TypedDict
 
 import numpy as np
 
@@ -18,6 +18,7 @@ from fviz.atomic import os_error, replacing, write_text
 from fviz.errors import FvizError
 from fviz.evaluate import EstimatorResult, PairResult
 from fviz.run.config import PAYLOAD_DIR, RESULTS_FILE, RUN_FILE, RunConfig
+from fviz.schema import Mismatch, Real, convert
 from fviz.stats import number
 
 
@@ -116,52 +117,73 @@ _CUT = object()
 _warned: set[str] = set()
 
 
-def _num(v: Any) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool)
+Row3 = tuple[float, float, float]
+Matrix3 = tuple[Row3, Row3, Row3]  # F, R: finite
 
 
-def _array_problem(v: Any, shape: tuple[int, ...], where: str, nullable: bool = True) -> str | None:
-    """Why ``v`` is not a finite numeric array of ``shape`` (or null where allowed), or None."""
-    if v is None:
-        return None if nullable else f"'{where}' is null"
-    try:
-        a = np.array(v, dtype=np.float64)
-    except (TypeError, ValueError):
-        return f"'{where}' is not numbers"
-    if a.shape != shape:
-        return f"'{where}' has shape {a.shape}, expected {shape}"
-    return None if np.isfinite(a).all() else f"'{where}' is not finite"
+class _Estimator(TypedDict):
+    name: str
+    seconds: Real
+    error: Optional[str]
+    metrics: dict[str, Optional[Real]]
 
 
-def _typed_problem(d: dict, keys: dict[str, Any], where: str) -> str | None:
-    """Why the entries ``keys`` (name -> predicate, or type) of ``d`` do not hold, or None."""
-    for key, kind in keys.items():
-        if key not in d:
-            return f"no '{where}{key}'"
-        ok = kind(d[key]) if callable(kind) and not isinstance(kind, type) else (
-            isinstance(d[key], kind) and not isinstance(d[key], bool))
-        if not ok:
-            return f"'{where}{key}' is {type(d[key]).__name__}"
-    return None
+class EstimatorRecord(_Estimator, total=False):
+    """One F of a record's result (:meth:`EstimatorResult.to_dict`); F, R, t finite when given."""
+
+    F: Optional[Matrix3]
+    R: Optional[Matrix3]
+    t: Optional[Row3]
 
 
-_opt_str = lambda v: v is None or isinstance(v, str)  # noqa: E731
-_num_or_none = lambda v: v is None or _num(v)  # noqa: E731
-_RECORD_KEYS = {"key": str, "index": lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= 0,
-                "estimators": lambda v: isinstance(v, list) and all(isinstance(n, str) for n in v),
-                "ref": dict, "error": _opt_str}
-_RESULT_KEYS = {"pair": dict, "norm": str, "eval_threshold_px": _num, "F_gt": lambda v: v is None or isinstance(v, list),
-                "n_keypoints": lambda v: isinstance(v, list) and len(v) == 2 and all(_num(n) for n in v),
-                "n_matches": int, "n_eval": int,
-                "timings": lambda v: isinstance(v, dict) and all(_num(x) for x in v.values()),
-                "estimators": lambda v: isinstance(v, list) and all(isinstance(e, dict) for e in v),
-                "notes": lambda v: isinstance(v, list) and all(isinstance(n, str) for n in v)}
-_ESTIMATOR_KEYS = {"name": str, "seconds": _num, "error": _opt_str,
-                   "metrics": lambda v: isinstance(v, dict) and all(_num_or_none(x) for x in v.values())}
-_DIAGNOSTIC_NUMBERS = ("n_inliers", "homography_fraction", "gt_agree", "gt_sed_median_inliers")  # what triage reads
-_DIAGNOSTIC_KEYS = {"n_matches": _num, "baseline_m": _num, "rotation_fraction": _num_or_none,
-                    "estimators": lambda v: isinstance(v, dict) and all(
-                        isinstance(e, dict) and all(_num_or_none(e.get(k)) for k in _DIAGNOSTIC_NUMBERS) for e in v.values())}
+class PairSizes(TypedDict, total=False):
+    size_a: tuple[int, int]  # [width, height]
+    size_b: tuple[int, int]
+
+
+class ResultRecord(TypedDict):
+    """A record's ``result`` (:meth:`PairResult.to_dict`); its estimators are checked one by one."""
+
+    pair: PairSizes
+    norm: str
+    eval_threshold_px: Real
+    F_gt: Optional[Matrix3]
+    n_keypoints: tuple[Real, Real]
+    n_matches: int
+    n_eval: int
+    timings: dict[str, Real]
+    estimators: list[dict]
+    notes: list[str]
+
+
+class DiagnosedEstimator(TypedDict, total=False):  # what triage reads
+    n_inliers: Optional[Real]
+    homography_fraction: Optional[Real]
+    gt_agree: Optional[Real]
+    gt_sed_median_inliers: Optional[Real]
+
+
+class Diagnostics(TypedDict):
+    n_matches: Real
+    baseline_m: Real
+    rotation_fraction: Optional[Real]
+    estimators: dict[str, DiagnosedEstimator]
+
+
+class _Record(TypedDict):
+    key: str
+    index: int
+    estimators: list[str]
+    ref: dict
+    error: Optional[str]
+
+
+class PairRecord(_Record, total=False):
+    """One line of results.jsonl: the pair (``key``, its ``ref``), its result or its ``error``."""
+
+    fingerprint: str
+    diagnostics: Optional[Diagnostics]
+    result: Optional[dict]
 
 
 def _ref_problem(rec: dict) -> str | None:
@@ -185,50 +207,36 @@ def _ref_problem(rec: dict) -> str | None:
 
 def _result_problem(rec: dict) -> str | None:
     result = rec["result"]
-    if not isinstance(result, dict):
-        return f"'result' is {type(result).__name__}"
-    problem = _typed_problem(result, _RESULT_KEYS, "result.") or _array_problem(result["F_gt"], (3, 3), "result.F_gt")
-    if problem:
-        return problem
+    convert(result, ResultRecord, "result")
     if any(result["pair"].get(k) != v for k, v in rec["ref"].items()):
         return "'result.pair' is not the pair of 'ref'"
-    for size in ("size_a", "size_b"):
-        if size in result["pair"] and not (isinstance(result["pair"][size], list) and len(result["pair"][size]) == 2
-                                           and all(isinstance(n, int) for n in result["pair"][size])):
-            return f"'result.pair.{size}' is not [width, height]"
-    names = []
     for e in result["estimators"]:
-        problem = (_typed_problem(e, _ESTIMATOR_KEYS, "result.estimators[].") or _array_problem(e.get("F"), (3, 3), "result.estimators[].F")
-                   or _array_problem(e.get("R"), (3, 3), "result.estimators[].R")
-                   or _array_problem(e.get("t"), (3,), "result.estimators[].t"))
-        if problem:
-            return problem
-        names.append(e["name"])
+        convert(e, EstimatorRecord, "result.estimators[]")
     gt = ["gt"] if result["F_gt"] is not None else []  # a pair without ground truth has no gt row
-    if names != gt + rec["estimators"]:
+    if [e["name"] for e in result["estimators"]] != gt + rec["estimators"]:
         return "'result.estimators' are not the record's 'estimators'"
     return None
 
 
 def record_problem(rec: Any) -> str | None:
-    """What keeps a parsed results.jsonl line from being a pair record, or None: every field is checked
-    (type, shape, finiteness; ``ref`` names the pair of ``key``; the result's estimators are the
+    """What keeps a parsed results.jsonl line from being a pair record (:class:`PairRecord`), or None: every field
+    is checked (type, shape, finiteness; ``ref`` names the pair of ``key``; the result's estimators are the
     record's), so what reads records later (reports, resume, triage, eval.rrd) can trust them."""
     if not isinstance(rec, dict):
         return f"{type(rec).__name__}, not an object" if rec is not None else "null"
-    problem = _typed_problem(rec, _RECORD_KEYS, "") or _ref_problem(rec)
-    if problem:
-        return problem
-    if "fingerprint" in rec and not isinstance(rec["fingerprint"], str):
-        return "'fingerprint' is not a string"
-    diag = rec.get("diagnostics")
-    if diag is not None:
-        problem = _typed_problem(diag, _DIAGNOSTIC_KEYS, "diagnostics.") if isinstance(diag, dict) else "'diagnostics' is not an object"
-        if problem:
+    try:
+        convert(rec, PairRecord, "")
+        if rec["index"] < 0:
+            return f"'index' is {rec['index']}, expected >= 0"
+        if (problem := _ref_problem(rec)) is not None:
             return problem
-    if rec.get("result") is None:
-        return None if rec["error"] else "neither 'result' nor 'error'"
-    return _result_problem(rec)
+        if rec.get("result") is None:
+            return None if rec["error"] else "neither 'result' nor 'error'"
+        return _result_problem(rec)
+    except Mismatch as exc:
+        return exc.brief
+    except FvizError as exc:
+        return str(exc)
 
 
 def _warn_once(message: str) -> None:

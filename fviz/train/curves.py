@@ -24,7 +24,7 @@ from pathlib import Path
 
 import torch
 
-from fviz.train.validation import NO_BETTER
+from fviz.train.heldout import NO_BETTER
 
 
 class Curves:

@@ -267,7 +267,7 @@ def heldout_report(recipe, weights) -> dict[str, Any]:
 
 
 CONSTANT_NAMES = {"constant": "straight-ahead motion", "mean_f": "the training pairs' mean F"}
-NO_BETTER = "the model is no better than the constant"  # as fviz.train.validation.NO_BETTER
+NO_BETTER = "the model is no better than the constant"  # the verdict held out and at each validation (fviz.train.validation)
 
 
 def beats_constant(report: dict[str, Any], other: str, metric: str = "pose_err_deg") -> bool:

@@ -24,12 +24,12 @@ import math
 
 import torch
 
+from fviz.train.heldout import NO_BETTER
 from fviz.train.losses import epipolar_metrics, f_distance_t, f_loss, sample_points_on_geometry
 from fviz.train.recipe import Recipe
 
 
 VALIDATION_FIGURES = ("loss", "epi_abs", "epi_sqr", "sed_px", "f_dist")  # the network's; then each constant's
-NO_BETTER = "the model is no better than the constant"
 CONSTANTS = ("mean_f", "ahead")  # the constants every validation sets the network beside (CONSTANT_NAMES: how they read)
 CONSTANT_NAMES = {"mean_f": "the training pairs' mean F", "ahead": "straight-ahead motion"}
 BEATS_P = 0.05  # the network beats a constant when Wilcoxon's test of the per-pair median SEDs finds it lower at p < 0.05

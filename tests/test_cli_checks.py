@@ -1,4 +1,5 @@
-"""The smaller cases of issue 17: flags checked before any work, and messages that name the right cause.
+"""Flags checked before any work, and messages that name the right cause (a step past the sequence, a model that
+is an image, a symlink loop, a corrupt PNG, the metrics triage accepts).
 Real ``fviz`` subprocesses."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""User estimators that misbehave, for the isolation tests (``-e trust_estimators:NAME``, on PYTHONPATH)."""
+"""User estimators that misbehave, for the isolation tests (``-e misbehaving_estimators:NAME``, on PYTHONPATH)."""
 
 import sys
 import threading

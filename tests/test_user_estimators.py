@@ -1,6 +1,8 @@
-"""A user's estimator is isolated the same way on every path (issue 17): copies of its inputs, its stdout
-kept off fviz's, SystemExit / KeyboardInterrupt / a hang recorded as its failure. Real ``fviz``
-subprocesses with the estimators of faults/trust_estimators.py."""
+"""A user's estimator is isolated the same way on every path: copies of its inputs, its stdout kept off fviz's,
+SystemExit / KeyboardInterrupt / a hang / a segfault recorded as its failure; what it returns (a torch tensor that
+requires grad is its F; an array-like that will not convert, a complex F, an inlier mask of the wrong length are its
+named failure, never a traceback or a silently altered result). Real ``fviz``
+subprocesses with the estimators of faults/misbehaving_estimators.py."""
 
 from __future__ import annotations
 
@@ -8,6 +10,8 @@ import json
 import os
 from pathlib import Path
 
+import numpy as np
+import pytest
 from cli_util import read_csv, run_fviz
 
 PROJECT = Path(__file__).resolve().parents[1]
@@ -31,7 +35,7 @@ MISBEHAVING = ("chatty", "exits", "interrupts", "vandal", "hangs")
 def test_misbehaving_estimators_are_isolated_in_inspect(tmp_path):
     """Printing, exit(3), KeyboardInterrupt, zeroing its inputs, hanging: each is that estimator's own
     failure (or output on stderr), and 8point after them gives what it gives alone."""
-    specs = [a for name in MISBEHAVING for a in ("-e", f"trust_estimators:{name}")]
+    specs = [a for name in MISBEHAVING for a in ("-e", f"misbehaving_estimators:{name}")]
     r = fviz(*INSPECT, *specs, "-e", "8point", "--estimator-timeout", "3", "--json", "--out", tmp_path / "x.rrd")
     alone = fviz(*INSPECT, "-e", "8point", "--json", "--out", tmp_path / "a.rrd")
     assert r.returncode == 1, r.stderr  # as for any failing estimator: the others' results are there
@@ -47,7 +51,7 @@ def test_misbehaving_estimators_are_isolated_in_inspect(tmp_path):
 
 def test_misbehaving_estimators_are_recorded_in_eval(tmp_path):
     out = tmp_path / "run"
-    specs = [a for name in ("exits", "interrupts", "hangs") for a in ("-e", f"trust_estimators:{name}")]
+    specs = [a for name in ("exits", "interrupts", "hangs") for a in ("-e", f"misbehaving_estimators:{name}")]
     r = fviz("eval", "--synthetic", "--seeds", "0:1", *specs, "-e", "8point", *FAST, "--workers", "1", "--no-progress",
              "--estimator-timeout", "3", "--out-dir", out)
     assert r.returncode == 0, r.stderr
@@ -74,3 +78,31 @@ def test_a_missing_estimator_file_is_one_line(tmp_path):
     r = fviz(*INSPECT, "-e", "./nothing.py:fn", cwd=tmp_path)
     assert r.returncode == 2 and r.stderr.strip().splitlines() == [
         "error: --estimator ./nothing.py:fn: no such file nothing.py"], r.stderr
+
+
+def test_odd_returns_are_named_failures_and_a_grad_tensor_is_an_f(tmp_path):
+    names = ("grad_tensor", "unconvertible", "complex_f", "short_mask")
+    r = fviz(*INSPECT, *[a for n in names for a in ("-e", f"misbehaving_estimators:{n}")], "-e", "8point", "--json",
+             "--out", tmp_path / "x.rrd")
+    assert r.returncode == 1 and "Traceback" not in r.stderr, r.stderr
+    ests = by_name(json.loads(r.stdout))
+    assert ests["grad_tensor"]["error"] is None
+    np.testing.assert_allclose(np.array(ests["grad_tensor"]["F"]), np.array(ests["8point"]["F"]), rtol=1e-6, atol=1e-12)
+    assert "refuses to convert" in ests["unconvertible"]["error"]
+    assert "complex F" in ests["complex_f"]["error"]
+    n = json.loads(r.stdout)["n_matches"]
+    assert f"an inlier mask of {n - 1} entries for {n} matches" in ests["short_mask"]["error"]
+    for name in names[1:]:
+        assert f"error: estimator {name}: returned" in r.stderr
+
+
+@pytest.mark.parametrize("workers", ["1", "2"])
+def test_a_segfaulting_user_estimator_fails_its_pair_and_the_small_run_goes_on(tmp_path, workers):
+    crash = Path(__file__).resolve().parent / "faults" / "crash_estimators.py"
+    run = tmp_path / "run"
+    r = run_fviz("eval", "--synthetic", "--seeds", "0:2", "-e", "8point", "-e", f"{crash}:segfault_on_1",
+                 "--max-keypoints", "300", "--workers", workers, "--no-progress", "--out-dir", run)
+    assert r.returncode in (0, 1) and "Traceback" not in r.stderr, (r.returncode, r.stderr)
+    recs = {rec["index"]: rec for rec in map(json.loads, (run / "results.jsonl").read_text().splitlines())}
+    assert recs[0]["error"] is None and recs[1]["error"] == "the worker process evaluating this pair died"
+    assert (run / "summary.md").is_file() and (run / "metrics.csv").is_file()

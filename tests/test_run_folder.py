@@ -1,5 +1,6 @@
-"""Trust nothing in a run folder (issue 17): run.json, results.jsonl and metrics.csv as a user, a crash or
-another run may have left them. Every case goes through the real ``fviz`` in a subprocess, on copies of
+"""What a run folder holds is checked when read: run.json, results.jsonl and metrics.csv as a user, a crash or
+another run may have left them; links planted in it are never written through, a crash's temporaries are removed,
+shards are merged only when alike. Every case goes through the real ``fviz`` in a subprocess, on copies of
 one small synthetic run."""
 
 from __future__ import annotations
@@ -281,3 +282,53 @@ def test_the_default_stereo_selection_uses_only_frames_every_camera_has(kitti_ro
     assert "1 pairs (0 already done, 1 evaluated now, 0 not evaluated (pair errors)" in r.stderr
     figures = json.loads((out / "summary.json").read_text())
     assert figures["pairs"] == 1 and figures["estimators"]["gt"]["errors"] == 0
+
+
+# ------------------------------------------------------------------------------ links and a crash's leftovers
+
+
+@pytest.mark.parametrize("name", ["summary.md", "metrics.csv", "features.h5", "eval.rrd", "summary.json", "run.json"])
+def test_a_link_planted_in_a_run_folder_is_never_written_through(finished, tmp_path, name):
+    run, victim = tmp_path / "run", tmp_path / "victim"
+    shutil.copytree(finished, run)
+    victim.write_bytes(b"precious")
+    (run / name).unlink(missing_ok=True)
+    (run / name).symlink_to(victim)
+    r = run_fviz("eval", "--resume", "--out-dir", run, *RUN)
+    assert_one_line_error(r, 2, f"{run / name} is a symlink to {victim}, outside")
+    assert victim.read_bytes() == b"precious"
+
+
+def test_a_table_md_link_out_of_the_run_folder_is_never_written_through(finished, tmp_path):
+    run, victim = tmp_path / "run", tmp_path / "victim"
+    shutil.copytree(finished, run)
+    victim.write_bytes(b"precious")
+    (run / "table.md").symlink_to(victim)
+    assert_one_line_error(run_fviz("table", run), 2, "table.md is a symlink to", "outside")
+    assert victim.read_bytes() == b"precious"
+
+
+def test_resume_removes_the_cache_temporaries_a_killed_run_left(finished, tmp_path):
+    run = tmp_path / "run"
+    shutil.copytree(finished, run)
+    left = [run / ".features.h5.tmpab12cd", run / ".matches.h5.tmp9x_y", run / ".summary.md.tmpQQ"]
+    for p in left:
+        p.write_bytes(b"partial")
+    outside = tmp_path / "keep"
+    outside.write_bytes(b"k")
+    (run / ".metrics.csv.tmplink").symlink_to(outside)  # a link is never followed, only regular files go
+    ok("eval", "--resume", "--out-dir", run, *RUN)
+    assert not any(p.exists() for p in left)
+    assert outside.read_bytes() == b"k"
+
+
+# ------------------------------------------------------------------------------ merge
+
+
+def test_merge_of_shards_with_other_settings_names_the_option_and_both_values(tmp_path):
+    base = ("eval", "--synthetic", "--seeds", "0:2", "-e", "8point", "--workers", "1", "--no-progress")
+    ok(*base, "--shard", "0/2", "--max-keypoints", "300", "--out-dir", tmp_path / "s0")
+    ok(*base, "--shard", "1/2", "--max-keypoints", "200", "--out-dir", tmp_path / "s1")
+    r = run_fviz("merge", tmp_path / "s0", tmp_path / "s1", "--out-dir", tmp_path / "m")
+    assert_one_line_error(r, 2, f"merge: {tmp_path / 's1'} was run with other settings than {tmp_path / 's0'}",
+                          f"--max-keypoints 300 in {tmp_path / 's0'}, 200 in {tmp_path / 's1'}")

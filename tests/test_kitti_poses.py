@@ -1,4 +1,4 @@
-"""Ground truth from bad poses is refused (issue 17): a 6-frame copy of sample sequence 00 whose poses file
+"""Ground truth from bad poses is refused: a 6-frame copy of sample sequence 00 whose poses file
 is damaged, through the real ``fviz`` in a subprocess."""
 
 from __future__ import annotations
