@@ -1,0 +1,79 @@
+"""A run's pairs from Python: one pair of a run folder read back on demand, as the run evaluated it (no other pair is
+evaluated again). ``fviz open RUN --pair X`` is a client::
+
+    pair, result = fviz.read_pair("runs/a", 3)                  # or the pair's name; result as fviz.inspect_pair's
+    fviz.save_recording("pair3.rrd", pair, result)              # clickable, and editable: fviz.edit(pair, result)
+
+Bad input raises :class:`fviz.errors.FvizError` with a one-line message that starts with the parameter's name.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from fviz.api.names import python_errors
+from fviz.api.pairs import Inspected, judged
+from fviz.api.runs import Run, _folder
+from fviz.errors import FvizError, from_command_line
+
+if TYPE_CHECKING:  # pragma: no cover
+    from fviz.data.pair import Pair
+    from fviz.evaluate import PairResult
+    from fviz.run.reopen import Reopened
+
+__all__ = ["read_pair"]
+
+
+def _reopened(run: Run | str | os.PathLike, pair: int | str, what: str, where: str) -> Reopened:
+    from fviz.run import read_config
+    from fviz.run.reopen import reopen
+
+    if isinstance(pair, bool) or not isinstance(pair, (int, str)) or (isinstance(pair, int) and pair < 0):
+        raise FvizError(f"{what} {pair!r}: expected a pair's index (an int >= 0) or its name")
+    folder = _folder(run)
+    config = read_config(folder)
+    if config is None:
+        raise FvizError(f"{where} {folder}: no run there ({'no run.json' if folder.is_dir() else 'no such folder'})")
+    return reopen(folder, config, pair, what)
+
+
+def _inspected(r: Reopened, ests: list | None = None, specs: dict | None = None) -> Inspected:
+    """How the run evaluated the pair, as :func:`fviz.inspect_pair` keeps it (what :func:`fviz.reestimate` needs)."""
+    c = r.config
+    return Inspected(r.ests if ests is None else ests, r.specs if specs is None else specs, c.options, c.norm,
+                     c.eval_threshold, c.options.threshold, c.estimator_timeout, [])
+
+
+@python_errors
+def read_pair(run: Run | str | os.PathLike, pair: int | str) -> tuple[Pair, PairResult]:
+    """One pair of a run folder, rebuilt on demand: the pair from the run's source (run.json), its matches from the
+    run's cache (features.h5 / matches.h5; else computed again with the run's feature settings, with a note), and the
+    run's estimators run again with the run's settings, so that its F's are those results.jsonl holds (a note names
+    any that is not).
+
+    Args:
+        run: a :class:`fviz.Run` or its folder.
+        pair: the pair's index on the run's ``pair`` timeline (results.jsonl's ``index``; eval.rrd's time) or its
+            name (results.jsonl's ``key``; its end after a "/" is enough when unique).
+
+    Returns:
+        (:class:`fviz.Pair`, :class:`fviz.PairResult`) as :func:`fviz.inspect_pair` gives them: log it
+        (:func:`fviz.log_result`, ``index=`` the pair's), save it, edit it (:func:`fviz.edit`).
+    """
+    a = _reopened(run, pair, "--pair" if from_command_line() else "pair", "run")
+    return a.pair, judged(a.pair, _inspected(a), a.result)
+
+
+@python_errors
+def pair_recording(run: Run | str | os.PathLike, pair: int | str) -> tuple[Path, Pair, PairResult]:
+    """:func:`read_pair`, written as inspect's recording into the run folder: RUN/pairs/<name>.rrd.
+    -> (the recording, the pair, its result)."""
+    from fviz.api.pairs import save_recording
+    from fviz.run.config import PAYLOAD_DIR
+
+    p, result = read_pair(run, pair)
+    folder = _folder(run) / PAYLOAD_DIR
+    folder.mkdir(exist_ok=True)
+    return save_recording(folder / f"{p.id.name.replace('/', '_')}.rrd", p, result), p, result

@@ -1,0 +1,120 @@
+"""From a run to its pair (issue 42, item 2): ``fviz.read_pair`` rebuilds one pair of a run folder on demand, its F's
+those results.jsonl holds, editable; ``fviz open RUN --pair`` writes and opens its recording."""
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+from rerun.chunk import RrdReader
+
+import fviz
+from fviz.errors import FvizError, command_line
+from fviz.record import layout as L
+
+pytestmark = pytest.mark.kitti
+
+SETTINGS = dict(estimators=("8point", "magsac"), max_keypoints=400, workers=1)
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory, kitti_root):
+    sel = fviz.select(kitti_root, sequence="00", frames=(0, 3), kinds="temporal")
+    return fviz.evaluate_run(sel, tmp_path_factory.mktemp("runs") / "a", **SETTINGS)
+
+
+def stored(run_dir, index):
+    """{estimator: F} of the record of pair ``index`` in results.jsonl."""
+    rec = next(r for r in map(json.loads, open(run_dir / "results.jsonl")) if r["index"] == index)
+    return {e["name"]: np.array(e["F"]) for e in rec["result"]["estimators"]}
+
+
+def entities(path):
+    return {ch.entity_path.lstrip("/") for ch in RrdReader(str(path)).stream().to_chunks()}
+
+
+def test_a_pair_read_back_has_the_runs_fs_and_is_editable(run):
+    keys = [r["key"] for r in run.records()]
+    for index, which in ((0, 0), (1, keys[1]), (1, keys[1].rsplit("/", 1)[1])):
+        pair, result = fviz.read_pair(run, which)
+        assert pair.id.name == keys[index] and not result.notes
+        assert {e.name: e.F for e in result.estimators}.keys() == stored(run.out_dir, index).keys()
+        for e in result.estimators:
+            assert np.array_equal(e.F, stored(run.out_dir, index)[e.name]), e.name
+    assert result.verdict is not None and result.matches is not None
+    looser = fviz.reestimate(pair, result, threshold={"magsac": 3.0})  # editable as an inspect_pair result
+    assert [e.name for e in looser.estimators] == ["gt", "8point", "magsac"]
+    kept = fviz.edit(pair, result).exclude([0, 1])
+    assert kept.n_matches == result.n_matches - 2
+
+
+def test_without_the_cache_the_matches_are_computed_again(run, tmp_path):
+    bare = tmp_path / "bare"
+    shutil.copytree(run.out_dir, bare)
+    for name in ("features.h5", "matches.h5"):
+        (bare / name).unlink()
+    pair, result = fviz.read_pair(bare, 1)
+    assert any("matches computed again with the run's feature settings (sift)" in n for n in result.notes)
+    assert all(np.array_equal(e.F, stored(bare, 1)[e.name]) for e in result.estimators)
+
+
+def test_a_stored_f_that_differs_is_named(run, tmp_path):
+    edited = tmp_path / "edited"
+    shutil.copytree(run.out_dir, edited)
+    lines = [json.loads(line) for line in open(edited / "results.jsonl")]
+    magsac = next(e for e in lines[0]["result"]["estimators"] if e["name"] == "magsac")
+    magsac["F"][0][0] += 1e-3
+    (edited / "results.jsonl").write_text("".join(json.dumps(r) + "\n" for r in lines))
+    _, result = fviz.read_pair(edited, 0)
+    assert [n for n in result.notes if "F differs" in n] == [
+        next(n for n in result.notes if n.startswith("magsac: its F differs from the run's in results.jsonl"))]
+
+
+def test_its_recording_has_the_images_lines_and_fs(run):
+    from fviz.api.runpairs import pair_recording
+
+    path, pair, result = pair_recording(run.out_dir, 1)
+    assert path == run.out_dir / "pairs" / (pair.id.name.replace("/", "_") + ".rrd")
+    found = entities(path)
+    assert {L.image("a"), L.image("b"), L.est("b", "magsac", "epilines"), L.est("b", "gt", "epilines"),
+            L.matches("gt")} <= found
+    from fviz.record.reader import click_pairs
+
+    (fs,) = click_pairs(path).values()  # what a click is answered with: the run's F's
+    assert fs.names == ["gt", "8point", "magsac"]
+    assert all(np.array_equal(F, stored(run.out_dir, 1)[n]) for n, F in zip(fs.names, fs.F))
+
+
+@pytest.mark.parametrize("which, message", [
+    (7, r"^pair 7: not a pair of the run in .* \(2 pairs: an index 0..1 or a name such as odometry/00/temporal/"),
+    ("nowhere", "^pair nowhere: not a pair of the run"),
+    (-1, "^pair -1: expected a pair's index"),
+    (True, "^pair True: expected a pair's index"),
+])
+def test_a_bad_pair_is_one_line_naming_it(run, which, message):
+    with pytest.raises(FvizError, match=message):
+        fviz.read_pair(run, which)
+
+
+def test_a_bad_run_is_one_line_naming_it(tmp_path):
+    with pytest.raises(FvizError, match="^run .*nothing: no run there \\(no such folder\\)"):
+        fviz.read_pair(tmp_path / "nothing", 0)
+    with pytest.raises(FvizError, match="^run .*: no run there \\(no run.json\\)"):
+        fviz.read_pair(tmp_path, 0)
+    with command_line(), pytest.raises(FvizError, match="^--pair 9: not a pair of the run"):
+        fviz.read_pair(_any_run(tmp_path), 9)
+
+
+def _any_run(tmp_path):
+    sel = fviz.select(seeds=(0, 1))
+    return fviz.evaluate_run(sel, tmp_path / "synthetic", estimators=("8point",), max_keypoints=200, workers=1)
+
+
+def test_a_failed_pair_says_why(tmp_path):
+    """A pair the run could not evaluate has no F's to rebuild: its record's error, in one line."""
+    run = _any_run(tmp_path)
+    lines = [json.loads(line) for line in open(run.out_dir / "results.jsonl")]
+    lines[0].update(result=None, error="image a: no such file")
+    (run.out_dir / "results.jsonl").write_text("".join(json.dumps(r) + "\n" for r in lines))
+    with pytest.raises(FvizError, match=r"^pair 0: synthetic/.* was not evaluated in the run \(image a: no such file\)"):
+        fviz.read_pair(run, 0)
