@@ -118,3 +118,50 @@ def test_a_failed_pair_says_why(tmp_path):
     (run.out_dir / "results.jsonl").write_text("".join(json.dumps(r) + "\n" for r in lines))
     with pytest.raises(FvizError, match=r"^pair 0: synthetic/.* was not evaluated in the run \(image a: no such file\)"):
         fviz.read_pair(run, 0)
+
+
+# ---------------------------------------------------------------------------------------------- fviz open RUN --pair
+
+
+def test_open_a_runs_pair_on_the_web_serves_it_editable(run):
+    """``fviz open RUN --pair NAME --web``: the pair's recording written into RUN/pairs/, served with the edit tools."""
+    import websocket
+    from browser import WebServer
+
+    key = next(run.records())["key"]
+    with WebServer(run.out_dir, "--pair", key.rsplit("/", 1)[1]) as server:
+        ws = websocket.create_connection(server.url.replace("http://", "ws://").replace("/?", "/ws?"), timeout=60)
+        try:
+            first, hello = ws.recv(), ws.recv()
+        finally:
+            ws.close()
+    path = run.out_dir / "pairs" / (key.replace("/", "_") + ".rrd")
+    assert first == path.read_bytes()  # the recording written, then the edit tools' state
+    assert json.loads(hello)["fviz"] == "edit" and json.loads(hello)["fs"] == ["gt", "8point", "magsac"]
+    assert f"recording: {path}" in "".join(server.lines)
+
+
+@pytest.mark.parametrize("args, fragment", [
+    (("--pair", "9"), "--pair 9: not a pair of the run in"),
+    (("--pair", "0", "--tab", "nope"), "has no tab 'nope'"),
+    ((), "a run folder, not a recording: open its recording"),
+])
+def test_open_a_runs_pair_errors_are_one_line(run, args, fragment):
+    from browser import free_port
+    from cli_util import assert_one_line_error, run_fviz
+
+    r = run_fviz("open", run.out_dir, "--web", "--web-port", free_port(), *args)
+    assert_one_line_error(r, 2, fragment)
+    r = run_fviz("open", run.out_dir / "eval.rrd", "--pair", "0", "--web", "--web-port", free_port())
+    assert_one_line_error(r, 2, "eval.rrd: a file, not a run folder")
+
+
+def test_triage_lists_the_command_that_opens_each_pair(run, tmp_path):
+    from cli_util import run_fviz
+
+    r = run_fviz("triage", run.out_dir, "--top", "1", "--no-progress")
+    assert r.returncode == 0, r.stderr
+    ranked = (run.out_dir / "triage.md").read_text()
+    key = ranked.split("### rank 0: `", 1)[1].split("`", 1)[0]
+    command = f"fviz open {run.out_dir} --pair {key} --web"
+    assert command in ranked and command in r.stdout

@@ -42,13 +42,28 @@ def open_recording(
     port: Port = 9876,
     web_port: WebPort = 9090,
     tab: Annotated[Optional[str], typer.Option("--tab", help="Open on this tab: an estimator's name, overview, probe, metrics or motion.")] = None,
+    pair: Annotated[Optional[str], typer.Option("--pair", help="PATH is a run folder: show this pair of it (its index on the pair timeline, or its name), rebuilt from the run's folder (its matches and settings; no other pair evaluated again) into PATH/pairs/<name>.rrd; with --web, editable.")] = None,
 ) -> None:
-    """Open a recording in Rerun's native viewer, or with --web in the browser (served on 127.0.0.1)."""
+    """Open a recording in Rerun's native viewer, or with --web in the browser (served on 127.0.0.1); with --pair, a
+    pair of a run folder, as inspect shows it."""
     from fviz import api
 
-    if api.viewing.open_recording(path, web=web, web_static=web_static, bind=bind, port=port, web_port=web_port, tab=tab):
+    if pair is not None:
+        path, native = api.viewing.open_run_pair(path, pair, web=web, web_static=web_static, bind=bind, port=port,
+                                                 web_port=web_port, tab=tab, shown=_shown)
+    else:
+        native = api.viewing.open_recording(path, web=web, web_static=web_static, bind=bind, port=port, web_port=web_port, tab=tab)
+    if native:
         print(f"native viewer started on {path}")
         print(CLICK_HINT.format(path=path))
+
+
+def _shown(path: Path, result) -> None:
+    """A run's pair, written: its recording, verdict and notes (before the viewer opens)."""
+    print(f"{result.pair['name']}: {result.verdict.line}")
+    print(f"recording: {path}", flush=True)
+    for note in result.notes:
+        print(f"note: {note}", file=sys.stderr)
 
 
 def _fmt(v: float | None) -> str:
