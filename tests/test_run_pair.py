@@ -165,3 +165,55 @@ def test_triage_lists_the_command_that_opens_each_pair(run, tmp_path):
     key = ranked.split("### rank 0: `", 1)[1].split("`", 1)[0]
     command = f"fviz open {run.out_dir} --pair {key} --web"
     assert command in ranked and command in r.stdout
+
+
+# ---------------------------------------------------------------------------------------------- eval.rrd's pairs on demand
+
+
+def rows_by_time(data: bytes, tmp_path) -> dict[str, dict]:
+    """What a page got: {entity: {pair index or "static": its last row}} of the bytes of a stream."""
+    import warnings
+
+    path = tmp_path / "got.rrd"
+    path.write_bytes(data)
+    out: dict[str, dict] = {}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # a stream's bytes have no footer
+        for ch in RrdReader(str(path)).stream().to_chunks():
+            rb = ch.to_record_batch()
+            cols = {c: rb.column(c).to_pylist() for c in rb.schema.names if c not in ("rerun.controls.RowId", "log_time")}
+            for i in range(rb.num_rows):
+                t = cols["pair"][i] if "pair" in cols else "static"
+                out.setdefault(ch.entity_path.lstrip("/"), {})[t] = {c: v[i] for c, v in cols.items()}
+    return out
+
+
+def test_the_page_of_a_runs_eval_rrd_draws_the_pair_the_time_cursor_reaches(run, tmp_path):
+    """fviz open RUN/eval.rrd --web, without --full: a time update to pair i (a right-click in a plot moves the time
+    cursor there) draws pair i (images, matches, lines, its F's), read from the run; a click on it is answered with
+    its F's. The viewer's own time update on opening draws nothing; pair 0 drawn after pair 1 clears what 0 logged."""
+    from fviz.api.runpairs import run_of_recording
+    from fviz.web.server import ClickApp
+
+    path = run.out_dir / "eval.rrd"
+    app = ClickApp(path, run=run_of_recording(path))
+    assert app.pairs == {} and app.run.indices == [0, 1]
+    _, answer = app.new_connection()
+    event = lambda kind, **kw: json.dumps({"application_id": app.ids[0], "recording_id": app.ids[1], "type": kind, **kw})
+    assert answer(event("time_update", time=0.0)) == []  # the viewer's, as it opens
+    (data,) = answer(event("time_update", time=1.0))
+    got = rows_by_time(data, tmp_path)
+    assert {L.image("a"), L.image("b"), L.est("b", "magsac", "epilines"), L.matches("gt")} <= got.keys()
+    assert 1 in got[L.image("a")] and "pair/fundamental" in got
+    stored_1 = stored(run.out_dir, 1)
+    F = np.asarray(got["pair/fundamental"][1]["F"], float).reshape(-1, 3, 3)
+    assert np.allclose(F, [stored_1[n] for n in ("gt", "8point", "magsac")], rtol=0, atol=1e-12)
+    assert answer(event("time_update", time=1.0)) == []  # drawn once
+    (data,) = answer(event("time_update", time=0.0))
+    got = rows_by_time(data, tmp_path)
+    assert 0 in got[L.image("a")] and 1 not in got[L.image("a")]  # pair 1 kept its own images (nothing cleared)
+    x_a = fviz.read_pair(run, 0)[1].matches.x_a[0]  # a keypoint: the answer lists its residual under every F
+    click = {"type": "entity", "entity_path": "/a/image", "position": [*map(float, x_a), None], "view_name": "overview"}
+    (data,) = answer(event("selection_change", items=[click]))
+    text = rows_by_time(data, tmp_path)["click/text"][0]
+    assert all(f"| {n} |" in str(text) for n in ("gt", "8point", "magsac"))

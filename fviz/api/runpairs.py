@@ -21,22 +21,27 @@ from fviz.errors import FvizError, from_command_line
 if TYPE_CHECKING:  # pragma: no cover
     from fviz.data.pair import Pair
     from fviz.evaluate import PairResult
+    from fviz.run.config import RunConfig
     from fviz.run.reopen import Reopened
 
 __all__ = ["read_pair"]
 
 
-def _reopened(run: Run | str | os.PathLike, pair: int | str, what: str, where: str) -> Reopened:
+def _config(folder: Path, where: str) -> RunConfig:
     from fviz.run import read_config
+
+    config = read_config(folder)
+    if config is None:
+        raise FvizError(f"{where} {folder}: no run there ({'no run.json' if folder.is_dir() else 'no such folder'})")
+    return config
+
+
+def _reopened(run: Run | str | os.PathLike, pair: int | str, what: str, where: str) -> Reopened:
     from fviz.run.reopen import reopen
 
     if isinstance(pair, bool) or not isinstance(pair, (int, str)) or (isinstance(pair, int) and pair < 0):
         raise FvizError(f"{what} {pair!r}: expected a pair's index (an int >= 0) or its name")
-    folder = _folder(run)
-    config = read_config(folder)
-    if config is None:
-        raise FvizError(f"{where} {folder}: no run there ({'no run.json' if folder.is_dir() else 'no such folder'})")
-    return reopen(folder, config, pair, what)
+    return reopen(_folder(run), _config(_folder(run), where), pair, what)
 
 
 def _inspected(r: Reopened, ests: list | None = None, specs: dict | None = None) -> Inspected:
@@ -77,3 +82,37 @@ def pair_recording(run: Run | str | os.PathLike, pair: int | str) -> tuple[Path,
     folder = _folder(run) / PAYLOAD_DIR
     folder.mkdir(exist_ok=True)
     return save_recording(folder / f"{p.id.name.replace('/', '_')}.rrd", p, result), p, result
+
+
+class RunPairs:
+    """The pairs of the run whose eval.rrd fviz's page shows, read on demand (as :func:`read_pair` reads them) when
+    the page's time cursor reaches one (:class:`fviz.interactive.OnDemand`): one at a time, with one evaluator (a
+    network loads once). ``indices``: the pairs the run evaluated (their place on the ``pair`` timeline)."""
+
+    def __init__(self, out_dir: Path):
+        import threading
+
+        from fviz.run.store import ResultStore
+
+        self.out_dir, self.config = Path(out_dir), _config(Path(out_dir), "run")
+        self.indices = sorted(e.index for e in ResultStore(self.out_dir, self.config).latest().values() if e.has_result)
+        self._evaluator = None  # made on the first pair read (its estimators resolved once)
+        self._lock = threading.Lock()  # pages are answered on a pool of threads; an evaluator is one pair at a time
+
+    def load(self, index: int) -> tuple[Pair, PairResult]:
+        from fviz.run.evaluator import PairEvaluator
+        from fviz.run.reopen import reopen
+
+        with self._lock:
+            self._evaluator = self._evaluator or PairEvaluator(self.config, self.out_dir)
+            r = reopen(self.out_dir, self.config, index, evaluator=self._evaluator)
+        return r.pair, judged(r.pair, _inspected(r), r.result)
+
+
+def run_of_recording(path: str | os.PathLike) -> RunPairs | None:
+    """The run whose eval.rrd ``path`` is (run.json beside it), its pairs to read on demand; None for any other
+    recording."""
+    from fviz.run.config import RRD_FILE, RUN_FILE
+
+    path = Path(path)
+    return RunPairs(path.parent) if path.name == RRD_FILE and (path.parent / RUN_FILE).is_file() else None

@@ -38,7 +38,7 @@ class _Logged:
 _streams: "weakref.WeakKeyDictionary[Any, _Logged]" = weakref.WeakKeyDictionary()
 
 
-class _Noting:
+class Noting:
     """A stream whose ``log`` notes the entity paths logged on its timelines (static ones are not a pair's)."""
 
     def __init__(self, rec):
@@ -58,7 +58,7 @@ def log_pair_into(rec, pair, result, lines: int, probe: int, probe_by: str | Non
     from fviz.record.writer import log_pair_recording, suspect_notice
 
     state = _streams.setdefault(rec, _Logged())
-    noting = _Noting(rec)
+    noting = Noting(rec)
     log_pair_recording(noting, pair, result, lines, probe, probe_by, index, many=True)
     state.paths[index], state.cleared[index] = noting.paths, set()
     state.sizes[index] = (tuple(pair.size_a), tuple(pair.size_b))

@@ -57,17 +57,19 @@ def find_record(out_dir: Path, config: RunConfig, which: int | str, what: str = 
     return next(read_records([entries[key]]))
 
 
-def reopen(out_dir: Path, config: RunConfig, which: int | str, what: str = "pair") -> Reopened:
+def reopen(out_dir: Path, config: RunConfig, which: int | str, what: str = "pair", evaluator=None) -> Reopened:
     """Pair ``which`` of the run (:func:`find_record`) evaluated again as the run evaluated it: -> :class:`Reopened`,
     whose result's notes say where its matches came from when not from the run's cache, and which F differs from
-    the one results.jsonl stored (none should: the estimators are seeded)."""
+    the one results.jsonl stored (none should: the estimators are seeded). ``evaluator``: the run's
+    :class:`fviz.run.evaluator.PairEvaluator` to use (kept by a caller that reads many pairs: a network loads once)."""
     from fviz.run.evaluator import PairEvaluator
 
     rec = find_record(Path(out_dir), config, which, what)
     if rec.get("result") is None:
         raise FvizError(f"{what} {which}: {rec['key']} was not evaluated in the run ({rec['error']})")
     names = [e["name"] for e in rec["result"]["estimators"] if e["name"] != GT_NAME]
-    evaluator = PairEvaluator(config, Path(out_dir))
+    evaluator = evaluator or PairEvaluator(config, Path(out_dir))
+    evaluator.disk.notes.clear()
     try:
         pair, result = evaluator.evaluate(PairId.from_dict(rec["ref"]), tuple(names))
     except FvizError as exc:
