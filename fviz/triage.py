@@ -287,10 +287,10 @@ def inspect_command(config, source, ref: dict[str, Any]) -> str:
     return shlex.join(args)
 
 
-def open_command(out_dir: Path, key: str) -> str:
-    """The ``fviz open RUN --pair NAME --web`` command that shows a pair of the run from the run's own folder (its
-    matches and settings), clickable and editable."""
-    return shlex.join(["fviz", "open", str(out_dir), "--pair", key, "--web"])
+def open_command(out_dir: Path, key: str, versus: Path | None = None) -> str:
+    """The ``fviz open RUN --pair NAME [--versus RUN_B] --web`` command that shows a pair of the run from the run's own
+    folder (its matches and settings; beside the same pair of run ``versus``), clickable and editable."""
+    return shlex.join(["fviz", "open", str(out_dir), "--pair", key, *(["--versus", str(versus)] if versus else []), "--web"])
 
 
 def _tag_text(r: Ranked) -> str:

@@ -217,3 +217,99 @@ def test_the_page_of_a_runs_eval_rrd_draws_the_pair_the_time_cursor_reaches(run,
     (data,) = answer(event("selection_change", items=[click]))
     text = rows_by_time(data, tmp_path)["click/text"][0]
     assert all(f"| {n} |" in str(text) for n in ("gt", "8point", "magsac"))
+
+
+# ---------------------------------------------------------------------------------------------- two runs on one pair
+
+
+@pytest.fixture(scope="module")
+def run_b(run, tmp_path_factory):
+    """Another run of the same pairs: other estimators and a looser threshold, the same features (the same matches)."""
+    return fviz.evaluate_run(run.config.selection, tmp_path_factory.mktemp("other") / "b",
+                             estimators=("magsac", "ransac"), max_keypoints=400, threshold=2.0, workers=1)
+
+
+def stored_metrics(run_dir, index):
+    rec = next(r for r in map(json.loads, open(run_dir / "results.jsonl")) if r["index"] == index)
+    return {e["name"]: e["metrics"] for e in rec["result"]["estimators"]}
+
+
+def test_two_runs_on_one_pair_in_one_result(run, run_b):
+    key = [r["key"] for r in run.records()][1]
+    pair, both = fviz.read_pair(run, key, versus=run_b)
+    assert [e.name for e in both.estimators] == ["gt", "a-8point", "a-magsac", "b-magsac", "b-ransac"]
+    for label, folder in (("a", run.out_dir), ("b", run_b.out_dir)):
+        index = next(r["index"] for r in fviz.read_run(folder).records() if r["key"] == key)
+        Fs, metrics = stored(folder, index), stored_metrics(folder, index)
+        for e in both.estimators:
+            if e.name.startswith(label + "-"):
+                name = e.name.split("-", 1)[1]
+                assert np.array_equal(e.F, Fs[name]), e.name  # each run's own F and metrics
+                assert e.metrics["sed_median"] == pytest.approx(metrics[name]["sed_median"], rel=1e-12), e.name
+    assert any(n.startswith("a vs b: inlier threshold 1.0 and 2.0") for n in both.notes), both.notes
+    assert not any("matches differ" in n for n in both.notes)
+    assert fviz.reestimate(pair, both, threshold={"b-magsac": 3.0}).get("b-magsac").F is not None  # editable
+
+    from fviz.api.runpairs import pair_recording
+    from fviz.record.reader import click_pairs
+
+    path, _, _ = pair_recording(run, key, versus=run_b, labels=("one", "two"))
+    assert path.name.endswith(".vs-two.rrd")
+    (fs,) = click_pairs(path).values()  # one click is answered with every F of both runs
+    assert fs.names == ["gt", "one-8point", "one-magsac", "two-magsac", "two-ransac"]
+
+
+def test_two_runs_whose_matches_differ_draw_the_first_runs(run, tmp_path):
+    fewer = fviz.evaluate_run(run.config.selection, tmp_path / "fewer", estimators=("8point",), max_keypoints=250,
+                              workers=1)
+    pair, both = fviz.read_pair(run, 0, versus=fewer)
+    _, own = fviz.read_pair(run, 0)
+    assert [e.name for e in both.estimators] == ["gt", "a-8point", "a-magsac", "fewer-8point"]
+    assert any(n.startswith("a vs fewer: the matches differ") and "drawn are the first run's" in n for n in both.notes)
+    assert both.n_matches == own.n_matches and len(both.get("fewer-8point").residuals_px) == own.n_matches
+    assert np.array_equal(both.get("fewer-8point").F, stored(fewer.out_dir, 0)["8point"])
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    (dict(labels=("x", "x")), "^labels \\('x', 'x'\\): two different names"),
+    (dict(labels=("x/y", "z")), "^labels .*: two different names"),
+])
+def test_versus_errors_name_the_parameter(run, run_b, kwargs, message):
+    with pytest.raises(FvizError, match=message):
+        fviz.read_pair(run, 0, versus=run_b, **kwargs)
+
+
+def test_versus_a_run_without_the_pair(run, tmp_path):
+    other = fviz.evaluate_run(fviz.select(seeds=(0, 1)), tmp_path / "synthetic", estimators=("8point",),
+                              max_keypoints=200, workers=1)
+    with pytest.raises(FvizError, match=r"^versus odometry/00/temporal/f000000c0-f000001c0: not a pair of the run in"):
+        fviz.read_pair(run, 0, versus=other)
+    with pytest.raises(FvizError, match=r"^versus .*nowhere: no run there"):
+        fviz.read_pair(run, 0, versus=tmp_path / "nowhere")
+
+
+def test_open_two_runs_on_one_pair_on_the_web(run, run_b):
+    import websocket
+    from browser import WebServer, free_port
+    from cli_util import assert_one_line_error, run_fviz
+
+    with WebServer(run.out_dir, "--pair", "1", "--versus", run_b.out_dir) as server:
+        ws = websocket.create_connection(server.url.replace("http://", "ws://").replace("/?", "/ws?"), timeout=60)
+        try:
+            ws.recv()
+            hello = json.loads(ws.recv())
+        finally:
+            ws.close()
+    assert hello["fs"] == ["gt", "a-8point", "a-magsac", "b-magsac", "b-ransac"]
+    assert any(".vs-b.rrd" in line for line in server.lines)
+    r = run_fviz("open", run.out_dir / "eval.rrd", "--versus", run_b.out_dir, "--web", "--web-port", free_port())
+    assert_one_line_error(r, 2, "--versus: only with --pair")
+
+
+def test_compare_of_two_runs_lists_the_command_showing_both(run, run_b):
+    va, vb = (stored_metrics(d, 0)[e]["sed_median"] for d, e in ((run.out_dir, "8point"), (run_b.out_dir, "magsac")))
+    assert va != vb  # a threshold between them: only one side fails pair 0, which compare.md then lists
+    c = fviz.compare_runs(run, run_b, estimators=("8point", "magsac"), fail_threshold=(va + vb) / 2,
+                          out=run.out_dir / "c.md")
+    key = next(run.records())["key"]
+    assert f"`fviz open {run.out_dir} --pair {key} --versus {run_b.out_dir} --web`" in c.markdown.read_text()

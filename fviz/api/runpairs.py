@@ -1,8 +1,9 @@
 """A run's pairs from Python: one pair of a run folder read back on demand, as the run evaluated it (no other pair is
-evaluated again). ``fviz open RUN --pair X`` is a client::
+evaluated again), and two runs on one pair as one result. ``fviz open RUN --pair X [--versus RUN_B]`` is a client::
 
     pair, result = fviz.read_pair("runs/a", 3)                  # or the pair's name; result as fviz.inspect_pair's
     fviz.save_recording("pair3.rrd", pair, result)              # clickable, and editable: fviz.edit(pair, result)
+    pair, both = fviz.read_pair("runs/a", 3, versus="runs/b")   # F's "a-magsac", "b-magsac", ...: one click, both runs
 
 Bad input raises :class:`fviz.errors.FvizError` with a one-line message that starts with the parameter's name.
 """
@@ -10,11 +11,12 @@ Bad input raises :class:`fviz.errors.FvizError` with a one-line message that sta
 from __future__ import annotations
 
 import os
+import re
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Sequence
 
 from fviz.api.names import python_errors
-from fviz.api.pairs import Inspected, judged
+from fviz.api.pairs import Inspected, judged, pair_fingerprint
 from fviz.api.runs import Run, _folder
 from fviz.errors import FvizError, from_command_line
 
@@ -25,6 +27,8 @@ if TYPE_CHECKING:  # pragma: no cover
     from fviz.run.reopen import Reopened
 
 __all__ = ["read_pair"]
+
+_UNSAFE = re.compile(r"[^A-Za-z0-9_.+-]+")  # what a run's label (a part of an F's name and of a file's) may not hold
 
 
 def _config(folder: Path, where: str) -> RunConfig:
@@ -51,8 +55,21 @@ def _inspected(r: Reopened, ests: list | None = None, specs: dict | None = None)
                      c.eval_threshold, c.options.threshold, c.estimator_timeout, [])
 
 
+def run_labels(a, b, labels: Sequence[str] | None = None) -> tuple[str, str]:
+    """Two runs' labels: ``labels``, else their folders' names (made safe in an F's name), or "a" and "b" when these
+    agree."""
+    if labels is None:
+        la, lb = (_UNSAFE.sub("_", _folder(r).absolute().name) or "run" for r in (a, b))
+        return (la, lb) if la != lb else ("a", "b")
+    names = (labels,) if isinstance(labels, str) else tuple(labels)
+    if len(names) != 2 or names[0] == names[1] or not all(isinstance(n, str) and n and not _UNSAFE.search(n) for n in names):
+        raise FvizError(f"labels {labels!r}: two different names of letters, digits, '_', '.', '+', '-'")
+    return names
+
+
 @python_errors
-def read_pair(run: Run | str | os.PathLike, pair: int | str) -> tuple[Pair, PairResult]:
+def read_pair(run: Run | str | os.PathLike, pair: int | str, *, versus: Run | str | os.PathLike | None = None,
+              labels: Sequence[str] | None = None) -> tuple[Pair, PairResult]:
     """One pair of a run folder, rebuilt on demand: the pair from the run's source (run.json), its matches from the
     run's cache (features.h5 / matches.h5; else computed again with the run's feature settings, with a note), and the
     run's estimators run again with the run's settings, so that its F's are those results.jsonl holds (a note names
@@ -62,26 +79,43 @@ def read_pair(run: Run | str | os.PathLike, pair: int | str) -> tuple[Pair, Pair
         run: a :class:`fviz.Run` or its folder.
         pair: the pair's index on the run's ``pair`` timeline (results.jsonl's ``index``; eval.rrd's time) or its
             name (results.jsonl's ``key``; its end after a "/" is enough when unique).
+        versus: another run (checkpoint, matcher, settings) on the same pair, found there by its name: one result
+            holding both runs' F's.
+        labels: with ``versus``, the two runs' labels (default: their folders' names, or "a" and "b").
 
     Returns:
         (:class:`fviz.Pair`, :class:`fviz.PairResult`) as :func:`fviz.inspect_pair` gives them: log it
-        (:func:`fviz.log_result`, ``index=`` the pair's), save it, edit it (:func:`fviz.edit`).
+        (:func:`fviz.log_result`, ``index=`` the pair's), save it, edit it (:func:`fviz.edit`). With ``versus`` the
+        F's are named "<label>-<estimator>" (the ground truth once), each with its own run's metrics, drawn on the
+        first run's matches (a note says where the runs' matches or settings differ).
     """
+    names = None if versus is None else run_labels(run, versus, labels)  # checked before any work
     a = _reopened(run, pair, "--pair" if from_command_line() else "pair", "run")
-    return a.pair, judged(a.pair, _inspected(a), a.result)
+    if versus is None:
+        return a.pair, judged(a.pair, _inspected(a), a.result)
+    from fviz.run.reopen import versus as both
+
+    b = _reopened(versus, a.record["key"], "versus", "versus")
+    if pair_fingerprint(a.pair) != pair_fingerprint(b.pair):
+        raise FvizError(f"versus {_folder(versus)}: its pair {a.record['key']} has other pixels or another ground truth "
+                        "than the first run's: not the same pair")
+    result, ests, specs = both(a, b, names)
+    return a.pair, judged(a.pair, _inspected(a, ests, specs), result)
 
 
 @python_errors
-def pair_recording(run: Run | str | os.PathLike, pair: int | str) -> tuple[Path, Pair, PairResult]:
-    """:func:`read_pair`, written as inspect's recording into the run folder: RUN/pairs/<name>.rrd.
-    -> (the recording, the pair, its result)."""
+def pair_recording(run: Run | str | os.PathLike, pair: int | str, *, versus: Run | str | os.PathLike | None = None,
+                   labels: Sequence[str] | None = None) -> tuple[Path, Pair, PairResult]:
+    """:func:`read_pair`, written as inspect's recording into the run folder: RUN/pairs/<name>.rrd (with ``versus``:
+    <name>.vs-<its label>.rrd). -> (the recording, the pair, its result)."""
     from fviz.api.pairs import save_recording
     from fviz.run.config import PAYLOAD_DIR
 
-    p, result = read_pair(run, pair)
+    p, result = read_pair(run, pair, versus=versus, labels=labels)
+    tail = "" if versus is None else ".vs-" + run_labels(run, versus, labels)[1]
     folder = _folder(run) / PAYLOAD_DIR
     folder.mkdir(exist_ok=True)
-    return save_recording(folder / f"{p.id.name.replace('/', '_')}.rrd", p, result), p, result
+    return save_recording(folder / f"{p.id.name.replace('/', '_')}{tail}.rrd", p, result), p, result
 
 
 class RunPairs:

@@ -123,23 +123,26 @@ def open_recording(path: str | Path, *, web: bool = False, web_static: bool = Fa
 
 
 @python_errors
-def open_run_pair(run, pair: int | str, *, web: bool = False, web_static: bool = False, bind: str = "127.0.0.1",
-                  port: int = 9876, web_port: int = 9090, tab: Optional[str] = None, shown=None) -> tuple[Path, bool]:
-    """Pair ``pair`` of a run folder (:func:`fviz.read_pair`: nothing else is evaluated again) written into
-    RUN/pairs/<name>.rrd and opened as :func:`open_recording` opens a recording; with ``web`` the page's edit tools edit
-    it. What would stop the viewer (a taken port, no display) is an error before the pair is read. ``shown(path,
-    result)`` is called once the recording is written, before the viewer opens (the command line prints them).
-    -> (the recording, whether a native viewer was started)."""
+def open_run_pair(run, pair: int | str, *, versus=None, labels=None, web: bool = False, web_static: bool = False,
+                  bind: str = "127.0.0.1", port: int = 9876, web_port: int = 9090, tab: Optional[str] = None,
+                  shown=None) -> tuple[Path, bool]:
+    """Pair ``pair`` of a run folder (:func:`fviz.read_pair`, ``versus`` another run on it: nothing else is evaluated
+    again) written into RUN/pairs/ and opened as :func:`open_recording` opens a recording; with ``web`` the page's edit
+    tools edit it. What would stop the viewer (a taken port, no display) is an error before the pair is read.
+    ``shown(path, result)`` is called once the recording is written, before the viewer opens (the command line prints
+    them). -> (the recording, whether a native viewer was started)."""
     from fviz.api.runpairs import pair_recording
     from fviz.viewer import check_port_free, has_display
 
-    if Path(getattr(run, "out_dir", run)).is_file():
-        raise FvizError(f"{run}: a file, not a run folder: a pair is read from the folder fviz eval wrote (its --out-dir)")
+    for what, folder in (("", run), ("--versus ", versus)):
+        if folder is not None and Path(getattr(folder, "out_dir", folder)).is_file():
+            raise FvizError(f"{what}{folder}: a file, not a run folder: a pair is read from the folder fviz eval wrote "
+                            "(its --out-dir)")
     if web or web_static:
         check_port_free(bind, web_port, "--web-port")
     elif not has_display():
         raise FvizError("no display for the native viewer (DISPLAY and WAYLAND_DISPLAY are unset): add --web")
-    path, p, result = pair_recording(run, pair)
+    path, p, result = pair_recording(run, pair, versus=versus, labels=labels)
     if shown is not None:
         shown(path, result)
     return path, open_recording(path, web=web, web_static=web_static, bind=bind, port=port, web_port=web_port, tab=tab,

@@ -12,6 +12,7 @@ from typing import Annotated, Optional
 import typer
 
 from fviz.cli import options as o
+from fviz.errors import FvizError
 
 # Metric columns of the summary table, in this order when present (every metric: --json).
 KEY_METRICS = ("sed_median", "sampson_median", "rot_err_deg", "trans_err_deg", "nsgd", "inlier_ratio",
@@ -43,14 +44,17 @@ def open_recording(
     web_port: WebPort = 9090,
     tab: Annotated[Optional[str], typer.Option("--tab", help="Open on this tab: an estimator's name, overview, probe, metrics or motion.")] = None,
     pair: Annotated[Optional[str], typer.Option("--pair", help="PATH is a run folder: show this pair of it (its index on the pair timeline, or its name), rebuilt from the run's folder (its matches and settings; no other pair evaluated again) into PATH/pairs/<name>.rrd; with --web, editable.")] = None,
+    versus: Annotated[Optional[Path], typer.Option("--versus", help="With --pair: another run folder (checkpoint, matcher, settings) on the same pair: both runs' F's in one recording, named <run>-<estimator>, one click answered in all.")] = None,
 ) -> None:
     """Open a recording in Rerun's native viewer, or with --web in the browser (served on 127.0.0.1); with --pair, a
     pair of a run folder, as inspect shows it."""
     from fviz import api
 
     if pair is not None:
-        path, native = api.viewing.open_run_pair(path, pair, web=web, web_static=web_static, bind=bind, port=port,
-                                                 web_port=web_port, tab=tab, shown=_shown)
+        path, native = api.viewing.open_run_pair(path, pair, versus=versus, web=web, web_static=web_static, bind=bind,
+                                                 port=port, web_port=web_port, tab=tab, shown=_shown)
+    elif versus is not None:
+        raise FvizError("--versus: only with --pair (a pair of PATH, a run folder, beside the same pair of --versus)")
     else:
         native = api.viewing.open_recording(path, web=web, web_static=web_static, bind=bind, port=port, web_port=web_port, tab=tab)
     if native:

@@ -5,7 +5,7 @@ the record (:func:`reopen`); two runs' results on one pair as one result (:func:
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -109,3 +109,51 @@ def differing_fs(result: PairResult, rec: dict[str, Any]) -> list[str]:
             notes.append(f"{r.name}: its F differs from the run's in results.jsonl (largest difference {diff:.2g} of "
                          "unit-norm F's); the run's metrics are those of its own F")
     return notes
+
+
+# ------------------------------------------------------------------------------ two runs on one pair
+
+
+def versus(a: Reopened, b: Reopened, labels: tuple[str, str]) -> tuple[PairResult, list, dict]:
+    """One result of two runs on one pair: the ground truth once (a's), then every estimator of each run named
+    "<label>-<name>", each with its run's own metrics; drawn on a's matches (b's per-match residuals and inliers
+    measured on them where b's matches differ, with a note). -> (result, ests, specs) with the names prefixed."""
+    from fviz.evaluate import agreement
+    from fviz.geometry import epipolar_residuals
+
+    ra, rb = a.result, b.result
+    ma, mb = ra.matches, rb.matches
+    same_matches = ma is not None and mb is not None and len(ma.x_a) == len(mb.x_a) \
+        and np.array_equal(ma.x_a, mb.x_a) and np.array_equal(ma.x_b, mb.x_b)
+    rows = [r for r in ra.estimators if r.name == GT_NAME]
+    for label, side in zip(labels, (a, b)):
+        threshold = side.config.options.threshold
+        for r in side.result.estimators:
+            if r.name == GT_NAME:
+                continue
+            r = replace(r, name=f"{label}-{r.name}", metrics=dict(r.metrics))
+            if side is b and not same_matches and r.F is not None and ma is not None:
+                _, r.residuals_px, sampson = epipolar_residuals(r.F, ma.x_a, ma.x_b)
+                r.inliers = sampson < threshold
+            rows.append(r)
+    notes = [f"{labels[0]} vs {labels[1]}: {note}" for note in _differences(a, b, same_matches)]
+    notes += [f"{labels[0]}: {n}" for n in ra.notes] + [f"{labels[1]}: {n}" for n in rb.notes if n not in ra.notes]
+    result = replace(ra, estimators=rows, notes=notes, verdict=None,
+                     agreement=None if ra.has_gt else agreement(rows, a.pair.size_a, a.pair.size_b))
+    ests = [(f"{label}-{n}", fn) for label, side in zip(labels, (a, b)) for n, fn in side.ests]
+    specs = {f"{label}-{n}": s for label, side in zip(labels, (a, b)) for n, s in side.specs.items()}
+    return result, ests, specs
+
+
+def _differences(a: Reopened, b: Reopened, same_matches: bool) -> list[str]:
+    """What differs between two runs on one pair beyond their estimators: the matches, the evaluation settings."""
+    out = []
+    if not same_matches:
+        out.append(f"the matches differ ({a.result.n_matches} and {b.result.n_matches}): drawn are the first run's; "
+                   "each run's metrics are its own, on its own matches")
+    ca, cb = a.config, b.config
+    for what, va, vb in (("norm", ca.norm, cb.norm), ("eval threshold", ca.eval_threshold, cb.eval_threshold),
+                         ("inlier threshold", ca.options.threshold, cb.options.threshold)):
+        if va != vb:
+            out.append(f"{what} {va} and {vb}: each run's metrics under its own; an edit re-estimates under the first's")
+    return out
