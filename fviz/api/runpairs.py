@@ -95,9 +95,9 @@ def read_pair(run: Run | str | os.PathLike, pair: int | str, *, versus: Run | st
         return a.pair, judged(a.pair, _inspected(a), a.result)
     from fviz.run.reopen import versus as both
 
-    b = _reopened(versus, a.record["key"], "versus", "versus")
+    b = _reopened(versus, a.record["key"], "--versus", "--versus")  # python_errors names the parameter
     if pair_fingerprint(a.pair) != pair_fingerprint(b.pair):
-        raise FvizError(f"versus {_folder(versus)}: its pair {a.record['key']} has other pixels or another ground truth "
+        raise FvizError(f"--versus {_folder(versus)}: its pair {a.record['key']} has other pixels or another ground truth "
                         "than the first run's: not the same pair")
     result, ests, specs = both(a, b, names)
     return a.pair, judged(a.pair, _inspected(a, ests, specs), result)

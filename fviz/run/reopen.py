@@ -52,8 +52,8 @@ def find_record(out_dir: Path, config: RunConfig, which: int | str, what: str = 
                             "whole name or the index")
     if key is None:
         first, last = min(by_index), max(by_index)
-        raise FvizError(f"{what} {which}: not a pair of the run in {out_dir} ({len(entries)} pairs: an index "
-                        f"{first}..{last} or a name such as {by_index[first]})")
+        raise FvizError(f"{what} {which}: not a pair of the run in {out_dir} ({len(entries)} pair"
+                        f"{'s' * (len(entries) != 1)}: an index {first}..{last} or a name such as {by_index[first]})")
     return next(read_records([entries[key]]))
 
 
