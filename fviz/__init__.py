@@ -10,6 +10,7 @@ The public Python API (:mod:`fviz.api`), imported on first use so that ``import 
 
     fviz.select                            ->  fviz.Selection (which pairs)
     fviz.evaluate_run, fviz.read_run       ->  fviz.Run (a run folder)
+    fviz.read_pair                         ->  a run's pair and its result, rebuilt on demand (editable)
     fviz.triage_run, fviz.compare_runs, fviz.run_table, fviz.merge_runs, fviz.train
 """
 
@@ -18,7 +19,7 @@ from fviz.version import __version__  # noqa: F401
 __all__ = ["Pair", "PairResult", "load_pair", "pair_from_images", "inspect_pair", "log_result", "save_recording",
            "log_training_step", "kitti_pair", "synthetic_pair", "pairs_file_pair", "colmap_pair", "with_matches", "reestimate", "edit",
            "Selection", "Run", "select", "evaluate_run", "triage_run", "compare_runs", "run_table",
-           "read_run", "merge_runs", "train"]
+           "read_run", "read_pair", "merge_runs", "train"]
 
 
 def __getattr__(name: str):

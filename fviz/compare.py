@@ -292,7 +292,7 @@ def compare_markdown(c: Comparison, places: dict[str, Place] | None = None) -> s
         lines += ["", f"## {title}", ""]
         lines += [f"{stretch_text(names, places)}.", ""] if stretch_text(names, places) else []
         lines += ["| pair | a | b | reopen it |", "|---|---|---|---|"]
-        lines += [f"| `{n}` | {_v(c, n, 0)} | {_v(c, n, 1)} | {_command(places, n)} |" for n in names] or ["| (none) | | | |"]
+        lines += [f"| `{n}` | {_v(c, n, 0)} | {_v(c, n, 1)} | {_command(c, places, n)} |" for n in names] or ["| (none) | | | |"]
     better = "larger" if c.metric in HIGHER_IS_BETTER else "smaller"
     lines += ["", "## Per pair", "", f"{c.metric} of a and b and their difference, largest |a - b| first ({better} is better).",
               "", "| pair | a | b | a - b | |", "|---|--:|--:|--:|---|"]
@@ -300,8 +300,14 @@ def compare_markdown(c: Comparison, places: dict[str, Place] | None = None) -> s
     return "\n".join(lines) + "\n"
 
 
-def _command(places: dict[str, Place], name: str) -> str:
-    return f"`{places[name].command}`" if name in places else ""
+def _command(c: Comparison, places: dict[str, Place], name: str) -> str:
+    """The commands that reopen a pair: inspect's, and ``fviz open`` from run a's folder (beside run b's pair)."""
+    from fviz.triage import open_command
+
+    if name not in places:
+        return ""
+    versus = c.b.run if Path(c.b.run).absolute() != Path(c.a.run).absolute() else None
+    return f"`{places[name].command}`<br>`{open_command(c.a.run, name, versus)}`"
 
 
 def _verdict(c: Comparison, name: str, na: str, nb: str) -> str:

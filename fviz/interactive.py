@@ -12,7 +12,9 @@ as a selection (``SelectionChangeEvent``) whose item carries the entity, the ins
 - :func:`log_click`: draws it at ``layout.click(v)`` (rings, lines in each F's colour, the residuals as a label
   and ``layout.CLICK_TEXT``), replacing the previous click;
 - :class:`ClickSession`: the events of one viewer (time cursor, selections) -> log_click into a recording
-  stream whose bytes go to that viewer (the notebook widget, :mod:`fviz.web`).
+  stream whose bytes go to that viewer (the notebook widget, :mod:`fviz.web`);
+- :class:`OnDemand`: a run's pairs (eval.rrd without --full) drawn into that stream when the time cursor reaches
+  them (a right-click in a plot), so that they can be clicked too.
 """
 
 from __future__ import annotations
@@ -230,17 +232,34 @@ class ClickSession:
     shows whichever timeline the viewer is on. The time cursor on ``pair`` (TimeUpdateEvent,
     TimelineChangeEvent) picks the pair; on another timeline the last pair seen (the only one, for inspect)."""
 
-    def __init__(self, rec, pairs: dict[int, PairFs], stamps: tuple[str, ...] = ()):
+    def __init__(self, rec, pairs: dict[int, PairFs], stamps: tuple[str, ...] = (), on_demand: "OnDemand | None" = None):
         self.rec, self.pairs, self.stamps = rec, dict(sorted(pairs.items())), stamps
         self.timeline = L.TIMELINE
         self.index = next(iter(self.pairs), None)
         self.last: Click | None = None
+        self.on_demand = on_demand  # a run's pairs drawn when the time cursor reaches them (eval.rrd without --full)
+        self.opened_at: float | None = None  # the time the viewer opened on: no pair drawn until the cursor moves
+        self.moved = False
 
     def _at(self, timeline: str, time) -> None:
         self.timeline = timeline
         if timeline == L.TIMELINE and time is not None and self.pairs:
             before = [i for i in self.pairs if i <= float(time)]
             self.index = before[-1] if before else next(iter(self.pairs))
+
+    def _draw(self, time) -> None:
+        """The pair at ``time`` on ``pair`` drawn on demand, once the time cursor has left where the viewer opened (the
+        viewer reports that time itself: a run's page keeps opening on its plots)."""
+        if self.on_demand is None or self.timeline != L.TIMELINE or time is None:
+            return
+        self.opened_at = float(time) if self.opened_at is None else self.opened_at
+        self.moved = self.moved or float(time) != self.opened_at
+        if not self.moved:
+            return
+        index = int(round(float(time)))
+        if index not in self.pairs and (fs := self.on_demand.draw(index)) is not None:
+            self.pairs = dict(sorted({**self.pairs, index: fs}.items()))
+            self._at(self.timeline, time)
 
     def on_event(self, event) -> Click | None:
         """Handle one ``rerun`` viewer event; -> the click logged, if it was one."""
@@ -249,6 +268,7 @@ class ClickSession:
             self._at(event.timeline, event.time)
         elif kind == "time_update":
             self._at(self.timeline, event.time)
+            self._draw(event.time)
         elif kind == "selection_change":
             for item in event.items:
                 if getattr(item, "type", None) == "entity":
@@ -275,10 +295,76 @@ class ClickSession:
             self.rec.set_time(t, sequence=0)
         self.rec.set_time(L.TIMELINE, sequence=index)
         log_click(self.rec, fs, c)
-        later = [i for i in self.pairs if i > index]
+        later = [i for i in (*self.pairs, *(self.on_demand.indices if self.on_demand else ())) if i > index]
         if later:
-            self.rec.set_time(L.TIMELINE, sequence=later[0])
+            self.rec.set_time(L.TIMELINE, sequence=min(later))
             clear_click(self.rec)
+
+
+class OnDemand:
+    """A run's pairs drawn into a viewer's stream when its time cursor first reaches them: what ``eval --full`` would
+    have recorded of pair i (images, keypoints, lines, epipoles: :func:`fviz.record.writer.log_pair`) at ``pair`` = i,
+    for a run recorded without it (eval.rrd holds the metrics alone). ``indices``: the run's pairs; ``load(i) ->
+    (Pair, PairResult)`` (:func:`fviz.read_pair`); ``blueprint(sizes)``: the run's layout with views of images of
+    ``sizes``, sent with the first pair drawn (and again for a pair of another size).
+
+    Only the pairs drawn carry images: at the next pair of the run (not drawn yet) what pair i drew is cleared, so
+    that a pair never shows another's images; what a drawn neighbour lacks is cleared at it too."""
+
+    def __init__(self, rec, indices, load, blueprint):
+        self.rec, self.indices, self.load, self.blueprint = rec, sorted(indices), load, blueprint
+        self.drawn: dict[int, set[str]] = {}  # index -> the paths its pair logged
+        self.failed: dict[int, str] = {}
+        self.sizes: set[tuple] = set()
+        self.changed = False  # data logged since the owner last looked (take it with :meth:`take`)
+
+    def take(self) -> bool:
+        changed, self.changed = self.changed, False
+        return changed
+
+    def draw(self, index: int) -> PairFs | None:
+        """Pair ``index`` drawn (once): its :class:`PairFs`; None when it is not the run's or cannot be read."""
+        import rerun as rr
+
+        from fviz.errors import FvizError
+        from fviz.record.stream_pairs import Noting
+        from fviz.record.writer import log_pair, log_static
+
+        if index not in self.indices or index in self.drawn or index in self.failed:
+            return None
+        try:
+            pair, result = self.load(index)
+        except FvizError as exc:  # the record says why (its summary is in eval.rrd already)
+            self.failed[index] = str(exc)
+            return None
+        if not self.drawn:
+            log_static(self.rec, [r.name for r in result.estimators])  # the residual classes' colours
+        noting = Noting(self.rec)
+        log_pair(noting, index, pair, result, single_pair=False)
+        self.drawn[index] = {p for p in noting.paths if not _in_every_pair(p)}
+        clear_click(self.rec)  # at index: another pair's click, from before it
+        later = [i for i in self.indices if i > index]
+        if later:
+            gone = self.drawn[index] - self.drawn.get(later[0], set())
+            self.rec.set_time(L.TIMELINE, sequence=later[0])
+            for path in sorted(gone):
+                self.rec.log(path, rr.Clear(recursive=False))
+            if later[0] not in self.drawn:
+                clear_click(self.rec)
+        size = (tuple(pair.size_a), tuple(pair.size_b))
+        if size not in self.sizes:
+            self.sizes.add(size)
+            self.rec.send_blueprint(self.blueprint(sorted(self.sizes) if len(self.sizes) > 1 else size))
+        self.rec.set_time(L.TIMELINE, sequence=index)
+        self.changed = True
+        return pair_fs(result, pair.size_a, pair.size_b)
+
+
+def _in_every_pair(path: str) -> bool:
+    """Whether eval.rrd logs ``path`` at every pair (its text, verdict, metrics, errors, series): never cleared."""
+    from fviz.record.writer import SERIES_PATHS
+
+    return path in SERIES_PATHS or path in (L.VERDICT, L.PAIR_INFO, L.SUMMARY, L.PAIR_METRICS) or path.startswith(L.error(""))
 
 
 def session_for(path, rec=None):

@@ -287,6 +287,12 @@ def inspect_command(config, source, ref: dict[str, Any]) -> str:
     return shlex.join(args)
 
 
+def open_command(out_dir: Path, key: str, versus: Path | None = None) -> str:
+    """The ``fviz open RUN --pair NAME [--versus RUN_B] --web`` command that shows a pair of the run from the run's own
+    folder (its matches and settings; beside the same pair of run ``versus``), clickable and editable."""
+    return shlex.join(["fviz", "open", str(out_dir), "--pair", key, *(["--versus", str(versus)] if versus else []), "--web"])
+
+
 def _tag_text(r: Ranked) -> str:
     return ", ".join(t for t, _ in r.tags) or "-"
 
@@ -317,7 +323,7 @@ def findings_markdown(findings: list[Finding]) -> list[str]:
 
 
 def triage_markdown(config, ranked: list[Ranked], top: int, by: str, metric: str, source,
-                    findings: list[Finding] = (), by_reason: str = "") -> str:
+                    findings: list[Finding] = (), by_reason: str = "", out_dir: Path | None = None) -> str:
     counts = {t: sum(any(x == t for x, _ in r.tags) for r in ranked) for t in TAGS}
     worst = "smallest" if metric in HIGHER_IS_BETTER else "largest"
     lines = ["# fviz triage", "", f"{config.selection.describe()}: {len(ranked)} pairs.", ""]
@@ -362,6 +368,8 @@ def triage_markdown(config, ranked: list[Ranked], top: int, by: str, metric: str
         lines += ["", f"### rank {r.rank}: `{r.key}`", "", f"{metric} of {by}: {fmt(r.value, 4, ERROR)}"]
         lines += [f"- **{t}**: {why}" for t, why in r.tags]
         lines += ["", "```", inspect_command(config, source, r.ref), "```"]
+        lines += ["", "From the run's folder (its matches and settings; click, edit):", "", "```",
+                  open_command(out_dir, r.key), "```"] if out_dir is not None else []
     if any(is_run_baseline(n) for n in config.options.names):
         lines += ["", "The run-level baselines (`oracle-mean`, `mean:...`) are not inspect estimators: the commands "
                   "above leave them out."]
@@ -466,7 +474,8 @@ def run_triage(config, out_dir: str | Path, by: str | None = None, metric: str =
     records = {rec["index"]: rec for rec in store.records() if rec["index"] in wanted}
     source = config.selection.source()
     rrd = write_triage_recording(out_dir / TRIAGE_RRD, config, out_dir, shown, records, by, metric)  # tags the shown
-    md = write_text(out_dir / TRIAGE_FILE, triage_markdown(config, ranked, top, by, metric, source, findings, by_reason))
+    md = write_text(out_dir / TRIAGE_FILE, triage_markdown(config, ranked, top, by, metric, source, findings, by_reason,
+                                                                 out_dir))
     return TriageOutcome(ranked, md, rrd, outcome, by, findings)
 
 

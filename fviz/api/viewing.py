@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Optional
 
 from fviz.api.names import python_errors, word
+from fviz.errors import FvizError
 
 
 def serve(path: Path, bind: str, port: int, web_port: int, blueprint: Optional[Path] = None, static: bool = False,
@@ -18,8 +19,8 @@ def serve(path: Path, bind: str, port: int, web_port: int, blueprint: Optional[P
     fviz's page, where a click draws the point's epipolar lines (:mod:`fviz.web`), or with ``static``
     Rerun's own web viewer (``rerun --serve-web``: no clicks). With the ``pair`` and its ``result`` (inspect's), the
     page's edit tools exclude matches and re-estimate (:func:`fviz.edit`), exporting beside the recording
-    (``PATH.edited/``)."""
-    from fviz.errors import FvizError
+    (``PATH.edited/``). A run's eval.rrd (run.json beside it): a pair the time cursor reaches (a right-click in a plot)
+    is read from the run (:func:`fviz.read_pair`) and drawn, its images, matches and lines clickable."""
     from fviz.viewer import serve_web
     from fviz.web.server import serve_clicks
 
@@ -30,8 +31,10 @@ def serve(path: Path, bind: str, port: int, web_port: int, blueprint: Optional[P
         print(f"warning: {word('--bind')} {bind}: the viewer and the recording are reachable from other machines", file=sys.stderr)
     if static:
         serve_web(path, bind, port, web_port, blueprint)
-    elif pair is None:
-        serve_clicks(path, bind, web_port, blueprint)
+    elif pair is None:  # a run's eval.rrd: its pairs drawn on demand (fviz.interactive.OnDemand)
+        from fviz.api.runpairs import run_of_recording
+
+        serve_clicks(path, bind, web_port, blueprint, run=run_of_recording(path))
     else:
         serve_clicks(path, bind, web_port, blueprint, page_editor(pair, result, lines, probe), Path(path).with_suffix(".edited"))
 
@@ -106,9 +109,10 @@ def remove_when_done(pid: int, folder: Path) -> None:
 
 @python_errors
 def open_recording(path: str | Path, *, web: bool = False, web_static: bool = False, bind: str = "127.0.0.1",
-                   port: int = 9876, web_port: int = 9090, tab: Optional[str] = None) -> bool:
+                   port: int = 9876, web_port: int = 9090, tab: Optional[str] = None, pair=None, result=None) -> bool:
     """Open a recording in Rerun's native viewer (returns at once: True), or with ``web`` serve fviz's web viewer
-    (``web_static``: Rerun's own, no clicks) on ``bind``:``web_port`` until Ctrl-C / SIGTERM (then False).
+    (``web_static``: Rerun's own, no clicks) on ``bind``:``web_port`` until Ctrl-C / SIGTERM (then False); with the
+    ``pair`` and its ``result`` the recording shows, the page's edit tools edit it.
 
     Args:
         path: a ``*.rrd`` written by fviz (a one-line error on a missing, foreign or truncated file).
@@ -123,12 +127,15 @@ def open_recording(path: str | Path, *, web: bool = False, web_static: bool = Fa
     from fviz.viewer import spawn_native
 
     path = Path(path)
+    if path.is_dir() and (path / "run.json").is_file():
+        raise FvizError(f"{path}: a run folder, not a recording: open its recording ({path / 'eval.rrd'}) or one of its "
+                        f"pairs with --pair I (its index on the pair timeline, or its name)")
     open_rrd(path)  # one-line error on a missing, foreign or truncated file
     blueprint = tab_blueprint(path, tab) if tab is not None else None
     watched = False
     try:
         if web or web_static:
-            serve(path, bind, port, web_port, blueprint, static=web_static)
+            serve(path, bind, port, web_port, blueprint, static=web_static, pair=pair, result=result)
             return False
         proc = spawn_native(path, blueprint)
         if blueprint is not None:
@@ -172,6 +179,33 @@ def clickable(path: str | Path) -> bool:
     from fviz.record.rebuild import click_pairs
 
     return bool(click_pairs(Path(path)))
+
+
+@python_errors
+def open_run_pair(run, pair: int | str, *, versus=None, labels=None, web: bool = False, web_static: bool = False,
+                  bind: str = "127.0.0.1", port: int = 9876, web_port: int = 9090, tab: Optional[str] = None,
+                  shown=None) -> tuple[Path, bool]:
+    """Pair ``pair`` of a run folder (:func:`fviz.read_pair`, ``versus`` another run on it: nothing else is evaluated
+    again) written into RUN/pairs/ and opened as :func:`open_recording` opens a recording; with ``web`` the page's edit
+    tools edit it. What would stop the viewer (a taken port, no display) is an error before the pair is read.
+    ``shown(path, result)`` is called once the recording is written, before the viewer opens (the command line prints
+    them). -> (the recording, whether a native viewer was started)."""
+    from fviz.api.runpairs import pair_recording
+    from fviz.viewer import check_port_free, has_display
+
+    for what, folder in (("", run), ("--versus ", versus)):
+        if folder is not None and Path(getattr(folder, "out_dir", folder)).is_file():
+            raise FvizError(f"{what}{folder}: a file, not a run folder: a pair is read from the folder fviz eval wrote "
+                            "(its --out-dir)")
+    if web or web_static:
+        check_port_free(bind, web_port, "--web-port")
+    elif not has_display():
+        raise FvizError("no display for the native viewer (DISPLAY and WAYLAND_DISPLAY are unset): add --web")
+    path, p, result = pair_recording(run, pair, versus=versus, labels=labels)
+    if shown is not None:
+        shown(path, result)
+    return path, open_recording(path, web=web, web_static=web_static, bind=bind, port=port, web_port=web_port, tab=tab,
+                                pair=p, result=result)
 
 
 @python_errors

@@ -11,6 +11,7 @@ from typing import Annotated, Optional
 import typer
 
 from fviz.cli import options as o
+from fviz.errors import FvizError
 
 Recording = Annotated[Path, typer.Argument(help="A .rrd written by fviz (inspect, eval or triage).", show_default=False)]
 
@@ -39,13 +40,32 @@ def open_recording(
     port: Port = 9876,
     web_port: WebPort = 9090,
     tab: Annotated[Optional[str], typer.Option("--tab", help="Open on this tab: an estimator's name, overview, probe, metrics or motion.")] = None,
+    pair: Annotated[Optional[str], typer.Option("--pair", help="PATH is a run folder: show this pair of it (its index on the pair timeline, or its name), rebuilt from the run's folder (its matches and settings; no other pair evaluated again) into PATH/pairs/<name>.rrd; with --web, editable.")] = None,
+    versus: Annotated[Optional[Path], typer.Option("--versus", help="With --pair: another run folder (checkpoint, matcher, settings) on the same pair: both runs' F's in one recording, named <run>-<estimator>, one click answered in all.")] = None,
 ) -> None:
-    """Open a recording in Rerun's native viewer, or with --web in the browser (served on 127.0.0.1)."""
+    """Open a recording in Rerun's native viewer, or with --web in the browser (served on 127.0.0.1); with --pair, a
+    pair of a run folder, as inspect shows it."""
     from fviz import api
 
-    if api.viewing.open_recording(path, web=web, web_static=web_static, bind=bind, port=port, web_port=web_port, tab=tab):
+    if pair is not None:
+        path, native = api.viewing.open_run_pair(path, pair, versus=versus, web=web, web_static=web_static, bind=bind,
+                                                 port=port, web_port=web_port, tab=tab, shown=_shown)
+    elif versus is not None:
+        raise FvizError("--versus: only with --pair (a pair of PATH, a run folder, beside the same pair of --versus)")
+    else:
+        native = api.viewing.open_recording(path, web=web, web_static=web_static, bind=bind, port=port, web_port=web_port, tab=tab)
+    if native:
         print(f"native viewer started on {path}")
         print(CLICK_HINT.format(path=path) if api.viewing.clickable(path) else NO_CLICKS)
+
+
+def _shown(path: Path, result) -> None:
+    """A run's pair, written: its recording, verdict and notes (before the viewer opens)."""
+    print(f"{result.pair['name']}: {result.verdict.line}")
+    print(f"recording: {path}", flush=True)
+    for note in result.notes:
+        print(f"note: {note}", file=sys.stderr)
+
 
 
 def summary(

@@ -75,6 +75,11 @@ def _print_ranking(result, metric: str, top: int) -> None:
     console = Console(width=max(Console().width, 140))
     console.print(t)
     console.print(f"{result.markdown}\n{result.recording}")
+    if result.ranked:  # each listed pair's own command is in triage.md
+        import shlex
+
+        command = shlex.join(["fviz", "open", str(result.markdown.parent), "--pair", result.ranked[0].key, "--web"])
+        console.print(f"a pair from the run (images, matches, lines; click, edit): {command}", markup=False, soft_wrap=True)
 
 
 def compare(

@@ -15,13 +15,14 @@ from fviz.record.reader import _blueprint_fields, _chunks, _entity, _ints, colum
 from fviz.record.summary import read_recording
 
 
-def recording_blueprint(path: str | Path, active: str | None = None):
-    """(application id, the blueprint fviz stores in such a recording) rebuilt from what the file holds,
-    opening on tab ``active`` (an estimator's name, ``overview``, ``probe``, ``metrics``, ``motion``).
-    FvizError naming the tabs there are when there is no such tab."""
+def recording_blueprint(path: str | Path, active: str | None = None, sizes=None):
+    """(application id, the blueprint fviz stores in such a recording) rebuilt from what the file holds (``sizes``:
+    the images' to frame where it has none), opening on tab ``active`` (an estimator's name, ``overview``, ``probe``,
+    ``metrics``, ``motion``). FvizError naming the tabs there are when there is no such tab."""
     s = read_recording(path)
     many = L.PROBE_TIMELINE in s.timelines and len(s.items) > 1  # pairs logged into one stream (record.stream_pairs)
-    sizes = sorted({(f.size_a, f.size_b) for f in click_pairs(path).values()}) if many else (image_size(path, "a"), image_size(path, "b"))
+    sizes = sizes or (sorted({(f.size_a, f.size_b) for f in click_pairs(path).values()}) if many else
+                      (image_size(path, "a"), image_size(path, "b")))
     single_pair = L.PROBE_TIMELINE in s.timelines or L.COMPARE in s.entity_paths
     classes = match_classes(path) if single_pair and not many and L.matches(L.GT) in s.entity_paths else None
     ranges = None if single_pair else series_ranges(path, s.entity_paths)

@@ -38,7 +38,7 @@ class _Logged:
 _streams: "weakref.WeakKeyDictionary[Any, _Logged]" = weakref.WeakKeyDictionary()
 
 
-class _Noting:
+class Noting:
     """A stream whose ``log`` notes the entity paths logged on its timelines (static ones are not a pair's)."""
 
     def __init__(self, rec):
@@ -64,7 +64,7 @@ def log_pair_into(rec, pair, result, lines: int, probe: int, probe_by: str | Non
     from fviz.record.pair_text import suspect_notice
 
     state = _streams.setdefault(rec, _Logged())
-    noting = _Noting(rec)
+    noting = Noting(rec)
     redraw = redraw and index in state.paths
     log_pair_recording(noting, pair, result, lines, probe, probe_by, index, many=True, redraw=redraw, legend=legend)
     if redraw:

@@ -72,7 +72,7 @@ class ClickApp:
     ``timings``: per click (seconds from the event received to its bytes ready), for the benchmark; ``events``:
     the last ``KEEP_EVENTS`` events received, each cut to ``KEEP_EVENT_CHARS`` (both bounded)."""
 
-    def __init__(self, path: Path, blueprint: Path | None = None, editor=None, export_to: Path | None = None):
+    def __init__(self, path: Path, blueprint: Path | None = None, editor=None, export_to: Path | None = None, run=None):
         from fviz.record import layout as L
         from fviz.record.reader import store_ids, timelines
         from fviz.record.rebuild import click_pairs
@@ -80,6 +80,7 @@ class ClickApp:
 
         check_version()  # another rerun: one line when the server starts, not an error per click
         self.path, self.blueprint, self.editor, self.export_to = Path(path), blueprint, editor, export_to
+        self.run = run  # the run's pairs to draw on demand (``indices``, ``load(i)``): fviz.interactive.OnDemand
         self.ids = store_ids(path)
         self.pairs = click_pairs(path)
         self.stamps = tuple(t for t in timelines(path) if t == L.PROBE_TIMELINE)
@@ -94,12 +95,13 @@ class ClickApp:
         send back: the bytes of a click's or an edit's data, and an edit's status (JSON text))."""
         import rerun as rr
 
-        from fviz.interactive import ClickSession
+        from fviz.interactive import ClickSession, OnDemand
         from fviz.rerun_compat import viewer_event_from_json
 
         rec = rr.RecordingStream(self.ids[0], recording_id=self.ids[1], send_properties=False)
         stream = rec.binary_stream()
-        session = ClickSession(rec, self.pairs, self.stamps)
+        on_demand = OnDemand(rec, self.run.indices, self.run.load, self._run_blueprint) if self.run is not None else None
+        session = ClickSession(rec, self.pairs, self.stamps, on_demand)
         edits = self.editor(rec, session) if self.editor is not None else None
         hello = [json.dumps({"fviz": "edit", **edits.status(), **self._tools(edits)})] if edits is not None else []
         box = [False]  # drawing a box: the next two clicks are its corners
@@ -132,15 +134,22 @@ class ClickApp:
                 data = stream.read(flush=True)
                 self.timings.append(time.perf_counter() - t0)
                 return [data, json.dumps({"fviz": "edit", **edits.status()})]
-            if session.on_event(event) is None:
+            c = session.on_event(event)
+            if c is None and not (on_demand is not None and on_demand.take()):  # neither a click nor a pair drawn
                 return []
             data = stream.read(flush=True)
-            self.timings.append(time.perf_counter() - t0)
-            c = session.last
+            if c is not None:
+                self.timings.append(time.perf_counter() - t0)
             clicked = [json.dumps({"fviz": "click", "match": c.match})] if edits is not None and c is not None else []
             return [data, *clicked]
 
         return hello, answer
+
+    def _run_blueprint(self, sizes):
+        """The run's layout as ``eval --full`` stores it, its views framing images of ``sizes``."""
+        from fviz.record.reader import recording_blueprint
+
+        return recording_blueprint(self.path, sizes=sizes)[1]
 
     def _tools(self, edits) -> dict:
         """What the page's edit tools offer: the F's to measure residuals under, the robust estimators (threshold,
@@ -234,8 +243,8 @@ class PageServer:
     until :meth:`close`. ``url``: the page's URL, with the token."""
 
     def __init__(self, path: Path, host: str = "127.0.0.1", port: int = 9090, blueprint: Path | None = None, editor=None,
-                 export_to: Path | None = None):
-        self.app = ClickApp(path, blueprint, editor, export_to)
+                 export_to: Path | None = None, run=None):
+        self.app = ClickApp(path, blueprint, editor, export_to, run)
         self.host, self.port = host, port
         self.token = secrets.token_urlsafe(32)
         self.static = static_dir()
@@ -401,16 +410,18 @@ class PageServer:
 
 
 def serve_clicks(path: Path, host: str = "127.0.0.1", web_port: int = 9090, blueprint: Path | None = None, editor=None,
-                 export_to: Path | None = None) -> None:
+                 export_to: Path | None = None, run=None) -> None:
     """Serve the clickable page until Ctrl-C, SIGTERM or SIGHUP; print its URL once it serves. ``editor(rec,
-    clicks) -> EditSession`` makes each page's edit tools (:mod:`fviz.editing`); ``export_to``: their export folder."""
+    clicks) -> EditSession`` makes each page's edit tools (:mod:`fviz.editing`); ``export_to``: their export folder;
+    ``run``: the pairs of the run whose eval.rrd this is, drawn when the time cursor reaches one (ClickApp)."""
     from fviz.viewer import prepare_serving
 
     prepare_serving(path, host, None, web_port)
-    server = PageServer(path, host, web_port, blueprint, editor, export_to).start()
+    server = PageServer(path, host, web_port, blueprint, editor, export_to, run).start()
     try:
         what = "; edit the matches with the tools at the top" if editor is not None else ""
-        hint = (f"click a point of either image for its epipolar lines{what}" if server.app.pairs else
+        what += ("; right-click a plot (or move the time cursor) to draw that pair" if run is not None else "")
+        hint = (f"click a point of either image for its epipolar lines{what}" if server.app.pairs or run is not None else
                 "no pair images in this recording, nothing to click: eval --full records them")
         print(f"web viewer: {server.url}  ({hint}; Ctrl-C to stop)", flush=True)
         while True:  # short naps: a signal the kernel hands to a server thread only wakes the main one at its next tick
