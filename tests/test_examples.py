@@ -111,6 +111,9 @@ def test_notebook_runs_headless(kitti_root, tmp_path):
     sed = _sed_rows(text)
     assert list(sed) == ["gt", "magsac", "mine"] and sed["magsac"] < 0.5 < sed["mine"]
     assert f"saved {tmp_path / 'notebook_pair.rrd'}" in text and (tmp_path / "notebook_pair.rrd").is_file()
+    edited = re.search(r"^edited: (\d+) of (\d+) matches kept, magsac median SED ([0-9.]+) px \(was ([0-9.]+)\)", text, re.M)
+    assert edited and 0 < int(edited[1]) < int(edited[2]) and float(edited[3]) <= float(edited[4]), text  # off-F matches gone
+    assert "exported: F.json, features.h5, matches.h5, matches.txt" in text and (tmp_path / "edited" / "matches.h5").is_file()
     steps = [[float(v) for v in m.split(", ")] for m in re.findall(r"^step \d+: median SED \[(.*)\] px", text, re.M)]
     assert len(steps) == 6 and all(last < first / 10 for first, last in zip(steps[0], steps[-1]))  # converging
     widgets = [o for o in outputs if o.output_type == "display_data" and "application/vnd.jupyter.widget-view+json" in o.data]
