@@ -328,7 +328,8 @@ class OnDemand:
 
         from fviz.errors import FvizError
         from fviz.record.stream_pairs import Noting
-        from fviz.record.writer import log_pair, log_static
+        from fviz.record.pair_recording import log_pair
+        from fviz.record.run_plots import log_static
 
         if index not in self.indices or index in self.drawn or index in self.failed:
             return None
@@ -362,7 +363,7 @@ class OnDemand:
 
 def _in_every_pair(path: str) -> bool:
     """Whether eval.rrd logs ``path`` at every pair (its text, verdict, metrics, errors, series): never cleared."""
-    from fviz.record.writer import SERIES_PATHS
+    from fviz.record.run_plots import SERIES_PATHS
 
     return path in SERIES_PATHS or path in (L.VERDICT, L.PAIR_INFO, L.SUMMARY, L.PAIR_METRICS) or path.startswith(L.error(""))
 

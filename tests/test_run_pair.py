@@ -78,7 +78,7 @@ def test_its_recording_has_the_images_lines_and_fs(run):
     found = entities(path)
     assert {L.image("a"), L.image("b"), L.est("b", "magsac", "epilines"), L.est("b", "gt", "epilines"),
             L.matches("gt")} <= found
-    from fviz.record.reader import click_pairs
+    from fviz.record.rebuild import click_pairs
 
     (fs,) = click_pairs(path).values()  # what a click is answered with: the run's F's
     assert fs.names == ["gt", "8point", "magsac"]
@@ -251,7 +251,7 @@ def test_two_runs_on_one_pair_in_one_result(run, run_b):
     assert fviz.reestimate(pair, both, threshold={"b-magsac": 3.0}).get("b-magsac").F is not None  # editable
 
     from fviz.api.runpairs import pair_recording
-    from fviz.record.reader import click_pairs
+    from fviz.record.rebuild import click_pairs
 
     path, _, _ = pair_recording(run, key, versus=run_b, labels=("one", "two"))
     assert path.name.endswith(".vs-two.rrd")

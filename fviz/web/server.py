@@ -147,7 +147,7 @@ class ClickApp:
 
     def _run_blueprint(self, sizes):
         """The run's layout as ``eval --full`` stores it, its views framing images of ``sizes``."""
-        from fviz.record.reader import recording_blueprint
+        from fviz.record.rebuild import recording_blueprint
 
         return recording_blueprint(self.path, sizes=sizes)[1]
 
