@@ -35,7 +35,7 @@ SNAP_PX = 6.0  # a click this close to a match end picks that match
 RING_PX = 7.0  # the clicked point's ring and its partner's
 LINE_PX, GT_LINE_PX, HALO_PX = 1.5, 2.0, 1.5  # the clicked lines' radii (the static ones: 0.9) and their dark halo's margin
 RING_LINE_PX = 1.3
-LABEL_OFF_PX = 26.0  # the partner's label: this far from it, on the side away from its lines
+LABEL_OFF_PX = 10.0  # the partner's label box: this far from its ring, on the side clearest of its lines
 HALO_COLOR, RING_COLOR = (0, 0, 0), (255, 255, 255)  # the click's rings: white on a dark halo (keypoints are filled dots)
 
 
@@ -169,26 +169,32 @@ def halo_of(radii: list, unit: float) -> list:
     return [r + HALO_PX * unit for r in radii]
 
 
-def label_anchor(fs: PairFs, c: Click, n_rows: int) -> tuple[str, np.ndarray]:
-    """(view, (2,) point in that image) where the click's label goes: beside the partner (or the clicked point)
-    LABEL_OFF_PX screen px away along the normal of its first line, on the side whose label box (drawn below the
-    anchor, n_rows text rows) lies farther from that line; kept inside the image."""
+LABEL_CHAR_PX, LABEL_ROW_PX = 7.0, 16.0  # Rerun's label text: width of a character, height of a row (screen px)
+
+
+def label_anchor(fs: PairFs, c: Click, text: str) -> tuple[str, np.ndarray]:
+    """(view, (2,) point in that image) where the click's label ``text`` goes: Rerun draws it as a box below the
+    point, centred. The box is put LABEL_OFF_PX screen px from the partner (or the clicked point), on whichever side
+    (either way along its first line's normal, or a diagonal) leaves it clearest of the lines drawn there and of the
+    partner, inside the image."""
     u = screen_unit(fs.size_a)
     where, at = (c.other, c.partner) if c.partner is not None else (c.view, c.point)
     w, h = fs.size(where)
-    box = np.array([0.0, 0.5 * 16.0 * n_rows * u])  # the box's centre below the anchor (~16 screen px a row)
+    rows = text.split("\n")
+    half = 0.5 * u * np.array([LABEL_CHAR_PX * max(len(r) for r in rows), LABEL_ROW_PX * len(rows)])  # the box's
     lines = c.lines[np.asarray(c.inside, bool)] if where == c.other else np.zeros((0, 3))
     normal = lines[0, :2] / max(np.linalg.norm(lines[0, :2]), 1e-12) if len(lines) else np.array([0.7071, -0.7071])
-    off = (RING_PX + LABEL_OFF_PX) * u
+    sides = [normal, -normal, *(np.array(d) / np.sqrt(2) for d in ((1, 1), (1, -1), (-1, 1), (-1, -1)))]
     best, score = at, -np.inf
-    for side in (1.0, -1.0, None):
-        p = at + side * off * normal if side is not None else at + np.array([off, -off])
-        p = np.clip(p, [0.0, 0.0], [w - 1.0, h - 1.0 - 2 * box[1]])
-        centre = p + box
-        d = np.min(np.abs(lines[:, :2] @ centre + lines[:, 2]) / np.linalg.norm(lines[:, :2], axis=1)) if len(lines) else 0.0
-        d = min(d, np.linalg.norm(centre - at))
-        if d > score:
-            best, score = p, d
+    for d in sides:
+        centre = at + d * ((RING_PX + LABEL_OFF_PX) * u + np.abs(d) @ half)
+        centre = np.clip(centre, half, [w - 1.0, h - 1.0] - half)
+        ab = lines[:, :2] / np.linalg.norm(lines[:, :2], axis=1, keepdims=True) if len(lines) else np.zeros((0, 2))
+        clear = (np.abs(ab @ centre + lines[:, 2] / np.linalg.norm(lines[:, :2], axis=1)) - np.abs(ab) @ half) if len(lines) else []
+        own = np.max(np.abs(centre - at) - half)  # the partner outside the box
+        value = min(own, *clear) if len(clear) else own
+        if value > score:
+            best, score = centre - [0.0, half[1]], value
     return where, best
 
 
@@ -200,7 +206,7 @@ def log_click(rec, fs: PairFs, c: Click) -> None:
 
     u = screen_unit(fs.size_a)
     text = click_label(c)
-    where, anchor = label_anchor(fs, c, text.count("\n") + 1)
+    where, anchor = label_anchor(fs, c, text)
     for view, (strips, colors, radii, labels) in click_marks(fs, c).items():
         rec.log(L.click_halo(view), rr.LineStrips2D(strips, colors=[HALO_COLOR] * len(strips), radii=halo_of(radii, u),
                                                     draw_order=48.0))
