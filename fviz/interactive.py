@@ -204,13 +204,13 @@ def log_click(rec, fs: PairFs, c: Click) -> None:
     text = click_label(c)
     where, anchor = label_anchor(fs, c, text.count("\n") + 1)
     for view, (strips, colors, radii, labels) in click_marks(fs, c).items():
-        rec.log(fs.path(L.click_halo(view)), rr.LineStrips2D(strips, colors=[HALO_COLOR] * len(strips), radii=halo_of(radii, u),
-                                                    draw_order=48.0))
-        rec.log(fs.path(L.click(view)), rr.LineStrips2D(strips, colors=colors, radii=radii, labels=labels, show_labels=False,
-                                               draw_order=49.0))
+        rec.log(fs.path(L.click_halo(view)), rr.LineStrips2D(strips, colors=[HALO_COLOR] * len(strips),
+                                                             radii=halo_of(radii, u), draw_order=48.0))
+        rec.log(fs.path(L.click(view)), rr.LineStrips2D(strips, colors=colors, radii=radii, labels=labels,
+                                                        show_labels=False, draw_order=49.0))
         if view == where:
             rec.log(fs.path(L.click_label(view)), rr.Points2D([anchor], radii=0.5, colors=[RING_COLOR], labels=[text],
-                                                     show_labels=True, draw_order=50.0))
+                                                              show_labels=True, draw_order=50.0))
         else:
             rec.log(fs.path(L.click_label(view)), rr.Clear(recursive=False))
     rec.log(fs.path(L.CLICK_TEXT), rr.TextDocument(click_text(c), media_type="text/markdown"))

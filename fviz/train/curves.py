@@ -1,13 +1,13 @@
 """What a training run shows while it runs: its curves in ``train.rrd`` and its progress bar on the console.
 
 ``train.rrd`` (:class:`Curves`): a Rerun recording of the curves ``train/*`` and ``val/*`` on the ``step`` timeline,
-each validation's verdict against the constants (``val/verdict``), and of the network on ``train.watch_pairs``
-fixed validation pairs every ``train.watch_every`` steps or at each checkpoint: its epipolar lines beside the
-ground truth's and those of the constant validation sets it beside (the training pairs' mean F so far,
+each validation's verdict against the constants (``val/verdict``), and of the network on ``train.watch_pairs`` fixed
+validation pairs every ``train.watch_every`` steps or at each checkpoint: its epipolar lines beside the ground
+truth's and those of the constant validation sets it beside (the training pairs' mean F so far,
 :class:`fviz.train.validation.TargetMean`: the same F in every pair's model-input pixels, as validation applies it),
 through :func:`fviz.log_training_step` (a click in ``fviz open train.rrd --web`` draws a point's lines under each);
-rewritten complete, footer included, under a temporary
-name and renamed into place at each checkpoint: after SIGKILL it is the last checkpoint's complete recording.
+rewritten complete, footer included, under a temporary name and renamed into place at each checkpoint: after SIGKILL
+it is the last checkpoint's complete recording.
 ``train/loss`` is the loss of each training batch in training mode (dropout on, BatchNorm on the batch's
 statistics); ``val/loss`` the mean over the held-out validation pairs in eval mode (no dropout, BatchNorm's
 running statistics, which lag behind the weights early in a run: a large gap in the first hundred steps is that,
