@@ -12,7 +12,8 @@ as a selection (``SelectionChangeEvent``) whose item carries the entity, the ins
 - :func:`log_click`: draws it at ``layout.click(v)`` (rings, lines in each F's colour, the residuals as a label
   and ``layout.CLICK_TEXT``), replacing the previous click;
 - :class:`ClickSession`: the events of one viewer (time cursor, selections) -> log_click into a recording
-  stream whose bytes go to that viewer (the notebook widget, :mod:`fviz.web`);
+  stream whose bytes go to that viewer (the notebook widget, :mod:`fviz.web`); :class:`WatchSession` the same on
+  train.rrd's watched pairs, under the ground truth's, the network's (at each step) and a baseline's F;
 - :class:`OnDemand`: a run's pairs (eval.rrd without --full) drawn into that stream when the time cursor reaches
   them (a right-click in a plot), so that they can be clicked too.
 """
@@ -112,7 +113,7 @@ def click_at(fs: PairFs, position, entity_path: str | None = None, instance_id: 
     hovered in the previous frame, which on a slow frame is not the one under the click (the position is)."""
     n = len(fs.x_a)
     picked = None
-    if entity_path is not None and L.matches_owner(entity_path) and instance_id is not None and 0 <= instance_id < 2 * n:
+    if entity_path is not None and fs.ends(entity_path) and instance_id is not None and 0 <= instance_id < 2 * n:
         j = instance_id % n
         view = "a" if instance_id < n else "b"
         picked = view, j, (fs.x_a[j] if view == "a" else fs.x_b[j])
@@ -201,23 +202,24 @@ def label_anchor(fs: PairFs, c: Click, text: str) -> tuple[str, np.ndarray]:
 def log_click(rec, fs: PairFs, c: Click) -> None:
     """Draw ``c`` at ``layout.click(v)`` of both views over its halo (``layout.click_halo(v)``), the residual table
     beside the partner off its lines (or the clicked pixel's coordinates beside it), and ``layout.CLICK_TEXT``, at the
-    recording's current time, replacing the previous click (same paths, same time: the later row wins)."""
+    recording's current time, replacing the previous click (same paths, same time: the later row wins); all under the
+    pair's root (``fs.path``)."""
     import rerun as rr
 
     u = screen_unit(fs.size_a)
     text = click_label(c)
     where, anchor = label_anchor(fs, c, text)
     for view, (strips, colors, radii, labels) in click_marks(fs, c).items():
-        rec.log(L.click_halo(view), rr.LineStrips2D(strips, colors=[HALO_COLOR] * len(strips), radii=halo_of(radii, u),
-                                                    draw_order=48.0))
-        rec.log(L.click(view), rr.LineStrips2D(strips, colors=colors, radii=radii, labels=labels, show_labels=False,
-                                               draw_order=49.0))
+        rec.log(fs.path(L.click_halo(view)), rr.LineStrips2D(strips, colors=[HALO_COLOR] * len(strips),
+                                                             radii=halo_of(radii, u), draw_order=48.0))
+        rec.log(fs.path(L.click(view)), rr.LineStrips2D(strips, colors=colors, radii=radii, labels=labels,
+                                                        show_labels=False, draw_order=49.0))
         if view == where:
-            rec.log(L.click_label(view), rr.Points2D([anchor], radii=0.5, colors=[RING_COLOR], labels=[text],
-                                                     show_labels=True, draw_order=50.0))
+            rec.log(fs.path(L.click_label(view)), rr.Points2D([anchor], radii=0.5, colors=[RING_COLOR], labels=[text],
+                                                              show_labels=True, draw_order=50.0))
         else:
-            rec.log(L.click_label(view), rr.Clear(recursive=False))
-    rec.log(L.CLICK_TEXT, rr.TextDocument(click_text(c), media_type="text/markdown"))
+            rec.log(fs.path(L.click_label(view)), rr.Clear(recursive=False))
+    rec.log(fs.path(L.CLICK_TEXT), rr.TextDocument(click_text(c), media_type="text/markdown"))
 
 
 def clear_click(rec) -> None:
@@ -283,10 +285,14 @@ class ClickSession:
                         return c
         return None
 
+    def current(self) -> PairFs | None:
+        """The pair at the time cursor (None: none)."""
+        return self.pairs.get(self.index) if self.index is not None else None
+
     def select(self, entity_path: str | None, position=None, instance_id: int | None = None) -> Click | None:
         """A selected entity (and position in the root frame, instance) on the current pair -> the click
         logged, None when it is on neither image (or the pair has no F)."""
-        fs = self.pairs.get(self.index) if self.index is not None else None
+        fs = self.current()
         if fs is None:
             return None
         c = click_at(fs, position, entity_path.lstrip("/") if entity_path else None, instance_id)
@@ -305,6 +311,45 @@ class ClickSession:
         if later:
             self.rec.set_time(L.TIMELINE, sequence=min(later))
             clear_click(self.rec)
+
+
+class WatchSession(ClickSession):
+    """A viewer's events on train.rrd (:func:`fviz.log_training_step`) -> clicks logged into ``rec``.
+
+    watched: {pair name k: {step: PairFs}} (:func:`fviz.record.rebuild.watch_pairs`: per step the ground truth's,
+    the network's and a baseline's F). The clicked entity (``watch/{k}/...``) picks the pair (else the last one
+    clicked), the time cursor on ``step`` its frame (the last at or before it; none seen: the last frame). The click
+    is drawn under ``watch/{k}`` at every frame of the pair, each under that step's F's, so that scrubbing ``step``
+    shows the point's lines converge; the Click returned (``last``) is the cursor's."""
+
+    def __init__(self, rec, watched: dict[str, dict[int, PairFs]]):
+        super().__init__(rec, {})
+        self.watched = {k: dict(sorted(f.items())) for k, f in watched.items() if f}
+        self.timeline, self.name, self.step = L.TRAIN_TIMELINE, next(iter(self.watched), None), None
+
+    def _at(self, timeline: str, time) -> None:
+        self.timeline = timeline
+        if timeline == L.TRAIN_TIMELINE and time is not None:
+            self.step = float(time)
+
+    def current(self) -> PairFs | None:
+        frames = self.watched.get(self.name, {})
+        before = [s for s in frames if self.step is None or s <= self.step] or list(frames)[:1]
+        return frames[before[-1]] if before else None
+
+    def select(self, entity_path: str | None, position=None, instance_id: int | None = None) -> Click | None:
+        path = entity_path.strip("/") if entity_path else None
+        name = path.split("/")[1] if path and path.startswith(L.WATCH + "/") and path.count("/") > 1 else None
+        self.name = name if name in self.watched else self.name
+        fs = self.current()
+        c = click_at(fs, position, path, instance_id) if fs is not None else None
+        if c is None:
+            return None
+        for step, f in self.watched[self.name].items():
+            self.rec.set_time(L.TRAIN_TIMELINE, sequence=step)
+            log_click(self.rec, f, c if f is fs else click(f, c.view, c.point, c.match, snap=False))
+        self.last = c
+        return c
 
 
 class OnDemand:
@@ -380,12 +425,19 @@ def session_for(path, rec=None):
     import rerun as rr
 
     from fviz.record.reader import store_ids, timelines
-    from fviz.record.rebuild import click_pairs
+    from fviz.record.rebuild import click_pairs, watch_pairs
 
     app_id, rec_id = store_ids(path)
     rec = rec or rr.RecordingStream(app_id, recording_id=rec_id, send_properties=False)
-    stamps = tuple(t for t in timelines(path) if t == L.PROBE_TIMELINE)
-    return ClickSession(rec, click_pairs(path), stamps)
+    return session_of(rec, click_pairs(path), timelines(path), watch_pairs(path))
+
+
+def session_of(rec, pairs: dict, timelines, watched: dict) -> ClickSession:
+    """The session of a recording holding ``pairs`` (:func:`fviz.record.rebuild.click_pairs`) or, train.rrd, ``watched``
+    pairs (:func:`fviz.record.rebuild.watch_pairs`; when it has no others); ``timelines``: the recording's."""
+    if watched and not pairs:
+        return WatchSession(rec, watched)
+    return ClickSession(rec, pairs, tuple(t for t in timelines if t == L.PROBE_TIMELINE))
 
 
 def pair_fs(result, size_a: tuple[int, int], size_b: tuple[int, int]) -> PairFs:

@@ -2,7 +2,7 @@
 
 >>> import fviz.notebook
 >>> v = fviz.notebook.show(pair, result)          # a pair evaluated with fviz.inspect_pair
->>> v = fviz.notebook.open("runs/x/eval.rrd")     # any fviz recording with images (inspect, eval --full)
+>>> v = fviz.notebook.open("runs/x/eval.rrd")     # any fviz recording with images (inspect, eval --full, train.rrd)
 
 Then click a keypoint, or any pixel, of either image: the other image shows that point's epipolar line under
 the ground truth and every estimator, each in its colour, and (a keypoint) the match's partner with its
@@ -101,16 +101,18 @@ class ClickViewer:
         return c
 
     def click(self, view: str, x: float, y: float):
-        """Click pixel (x, y) of image ``view`` ("a" or "b") of the pair at the time cursor, as the viewer does
-        (snapped to a match end within reach) -> the :class:`fviz.interactive.Click` drawn, None off the image."""
+        """Click pixel (x, y) of image ``view`` ("a" or "b") of the pair at the time cursor (train.rrd: of the watched
+        pair last clicked, else the first), as the viewer does (snapped to a match end within reach) -> the
+        :class:`fviz.interactive.Click` drawn, None off the image."""
         from fviz.record import layout as L
         from fviz.record.placement import offset_b
 
         if view not in L.VIEWS:
             raise ValueError(f"view: 'a' or 'b', got {view!r}")
-        fs = self.session.pairs.get(self.session.index)
+        fs = self.session.current()
         shift = offset_b(fs.size_a) if fs is not None and view == "b" else 0.0
-        c = self.session.select(L.image(view), [*(np.asarray([x, y], float) + shift), 0.0])
+        entity = fs.path(L.image(view)) if fs is not None else L.image(view)
+        c = self.session.select(entity, [*(np.asarray([x, y], float) + shift), 0.0])
         if c is not None:
             self.rec.flush()
         return c
@@ -160,8 +162,8 @@ def show(pair, result, width: int | str = "auto", height: int | str = "auto", n_
 
 
 def open(path: str | Path, width: int | str = "auto", height: int | str = "auto") -> ClickViewer:  # noqa: A001
-    """A recording fviz wrote (inspect, eval --full, triage) in the notebook viewer, clicks wired: the file's
-    bytes go to the viewer, the clicks into the same recording (its application and recording id)."""
+    """A recording fviz wrote (inspect, eval --full, triage, train.rrd's watched pairs) in the notebook viewer, clicks
+    wired: the file's bytes go to the viewer, the clicks into the same recording (its application and recording id)."""
     from fviz.interactive import session_for
     from fviz.rerun_compat import send_rrd
 

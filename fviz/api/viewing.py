@@ -175,10 +175,10 @@ def summary_rows(s) -> tuple[list[str], list[str], list[list[list[str]]]]:
 @python_errors
 def clickable(path: str | Path) -> bool:
     """Whether a recording has pairs with images and F's, where a click in fviz's page draws lines (a run's
-    recording without ``--full`` has none)."""
-    from fviz.record.rebuild import click_pairs
+    recording without ``--full`` has none; train.rrd's watched pairs are)."""
+    from fviz.record.rebuild import click_pairs, watch_pairs
 
-    return bool(click_pairs(Path(path)))
+    return bool(click_pairs(Path(path)) or watch_pairs(Path(path)))
 
 
 @python_errors

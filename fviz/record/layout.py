@@ -1,12 +1,12 @@
 """The recording's layout in one place: entity paths, colours and the stored blueprint.
 
 Colours
-    Every estimator has one fixed colour (:func:`estimator_colors`; the ground truth is white), used for all
-    of it: epipolar lines, epipole, comparison bars, metric series, motion tracks and the probe's lines.
-    Charts and plots have a dark background (``CHART_BACKGROUND``) so that white shows in any theme; their
-    labels are white (Rerun draws them on grey boxes) beside the coloured bar. A point's residual (its distance to
-    its epipolar line, px) is a separate, sequential and colour-blind-safe scale (viridis, 0 to
-    ``RESIDUAL_MAX_PX``), given to keypoints through the class ids of the static annotation context, whose labels are the scale's legend.
+    Every estimator has one fixed colour (:func:`estimator_colors`; the ground truth is white), used for all of it:
+    epipolar lines, epipole, comparison bars, metric series, motion tracks and the probe's lines. Charts and plots
+    have a dark background (``CHART_BACKGROUND``) so that white shows in any theme; their labels are white (Rerun
+    draws them on grey boxes) beside the coloured bar. A point's residual (its distance to its epipolar line, px) is a
+    separate, sequential and colour-blind-safe scale (viridis, 0 to ``RESIDUAL_MAX_PX``), given to keypoints through
+    the class ids of the static annotation context, whose labels are the scale's legend.
 
 Entity paths (``{v}`` is the view, ``a`` or ``b``; ``{e}`` an estimator name, ``gt`` for the ground truth):
 
@@ -64,40 +64,39 @@ Entity paths (``{v}`` is the view, ``a`` or ``b``; ``{e}`` an estimator name, ``
 
 Training (``fviz train``'s train.rrd, :func:`fviz.log_training_step`; ``{k}`` names a watched validation pair):
 
-    train/{curve}, val/{metric} Scalars on ``step``: the training loss, learning rate, gradient norm, and
-                                the validation metrics (``fviz train`` only)
+    train/{curve}, val/{metric} Scalars on ``step`` (``fviz train``): loss, learning rate, gradient norm, validation
     watch/{k}/{v}/image         EncodedImage (JPEG), static: the pair as the network sees it (b below or beside a)
     watch/{k}/{v}/gt            LineStrips2D, static: the ground truth's epipolar lines of the pair's fixed
                                 correspondences (white) and a cross at its epipole
     watch/{k}/{v}/net           LineStrips2D on ``step``: the network's lines of the same correspondences (in
                                 its colour, ``watch_colors``) and its epipole's cross (arrow when outside)
+    watch/{k}/{v}/baseline      the same for a baseline F given (``fviz train``: the training targets' mean F), cyan
     watch/{k}/points            Points2D on ``step``: both ends of the correspondences (b's shifted by
                                 ``offset_b``), coloured by the network's residual (SED, px; the residual scale)
-    watch/{k}/sed_px            Scalars on ``step``: the network's median SED on the correspondences (px)
+    watch/{k}/sed_px[/baseline] Scalars on ``step``: the network's (the baseline's) median SED on them (px)
+    watch/{k}/fundamental       AnyValues on ``step``, as ``pair/fundamental``: ``gt``, ``network``, the baseline's
+                                name; what a click needs. A click's marks: ``watch/{k}/{v}/click`` (:mod:`fviz.interactive`)
 
 Image b is drawn below image a or right of it, ``b`` translated by :func:`fviz.record.placement.offset_b`, so one 2D
 view shows both and a match is one segment; marks that keep their size on screen are scaled by
 :func:`fviz.record.placement.screen_unit` (:mod:`fviz.record.placement`). A run's plots' titles, log10 values and y
 ranges: :mod:`fviz.record.plots`.
 
-Timelines: every pair sits at one index of ``pair`` (``inspect`` writes 0, ``eval`` one per pair; ``triage``
-adds ``rank``; ``fviz.log_result`` the index given, :mod:`fviz.record.stream_pairs`); ``inspect`` logs the pair at
+Timelines: every pair sits at one index of ``pair`` (``inspect`` writes 0, ``eval`` one per pair; ``triage`` adds
+``rank``; ``fviz.log_result`` the index given, :mod:`fviz.record.stream_pairs`); ``inspect`` logs the pair at
 ``probe`` = 0 too, so each probe step shows over the pair (a stream of many pairs opens on ``pair``).
 
-The stored blueprint (:func:`blueprint`) opens on an **overview** tab (both images stacked with the ground
-truth's residuals and lines, every F's epipole, the comparison chart and the summary), then **one tab per
-estimator** named after it (image a above image b with only that estimator's keypoints, lines and epipole,
-and the ground truth's lines in white), then **probe** (inspect); runs of many pairs add **metrics** (errors on log10 axes; over
-``pair``, or as points over triage's ``rank``) and, over ``pair``, **motion**, and open on them when the recording
-holds no images. Above the tabs of a recording with images: the pair's verdict, one line (triage: its banner, the
-verdict first).
+The stored blueprint (:func:`blueprint`) opens on an **overview** tab (both images stacked with the ground truth's
+residuals and lines, every F's epipole, the comparison chart and the summary), then **one tab per estimator** named
+after it (image a above image b with only that estimator's keypoints, lines and epipole, and the ground truth's lines
+in white), then **probe** (inspect); runs of many pairs add **metrics** (errors on log10 axes; over ``pair``, or as
+points over triage's ``rank``) and, over ``pair``, **motion**, and open on them when the recording holds no images.
+Above the tabs of a recording with images: the pair's verdict, one line (triage: its banner, the verdict first).
 ``fviz open FILE --tab NAME`` rebuilds this blueprint from the file (:func:`fviz.record.rebuild.recording_blueprint`)
 with another tab active.
 
-Past the house's 500 lines (tests/test_architecture.py, OVERSIZED): what stays is what the project keeps in this one
-place, the entity paths with their documentation above, the colours (the estimators' and the residual scale) and both
-recordings' blueprints (inspect/eval/triage, train.rrd); the maths placing marks, charts and plots is in placement,
-charts and plots.
+Past the house's 500 lines (tests/test_architecture.py, OVERSIZED): the entity paths with their documentation, the
+colours and both recordings' blueprints stay in this one place; the maths is in placement, charts and plots.
 """
 
 from __future__ import annotations
@@ -479,7 +478,7 @@ def blueprint(names: Sequence[str], sizes: Sequence | None, single_pair: bool, h
 # ---------------------------------------------------------------------------------------------- training
 
 WATCH = "watch"  # the watched validation pairs of a training run (see the module docstring)
-NET = "net"  # the network's F in a watched pair; the ground truth is GT
+NET, BASELINE, NETWORK = "net", "baseline", "network"  # entities of the network's and a baseline's F; the network's name
 
 
 def watch(name: str, what: str = "") -> str:
@@ -488,8 +487,8 @@ def watch(name: str, what: str = "") -> str:
 
 
 def watch_colors() -> dict[str, tuple[int, int, int]]:
-    """The network's colour (the palette's first) and the ground truth's (white) in watched pairs."""
-    return {NET: PALETTE[0], GT: GT_COLOR}
+    """The network's colour (the palette's first: orange), the baseline's (its second: cyan) and the ground truth's."""
+    return {NET: PALETTE[0], BASELINE: PALETTE[1], GT: GT_COLOR}
 
 
 # train.rrd's curves tab: (plot title, its series); each series' name and colour in TRAIN_SERIES.
@@ -511,7 +510,6 @@ TRAIN_SERIES = {
     "train/grad_norm": ("gradient norm", PALETTE[0]),
 }
 
-
 # each validation's line: the network beside both constants ("the model is no better than the constant: ..."),
 # a TextLog on ``step`` (fviz.train.validation.versus_constants), shown under the curves
 TRAIN_VERDICT = "val/verdict"
@@ -523,12 +521,13 @@ def training_style(key: str) -> dict:
     return {"names": [name], "colors": [color]}
 
 
-def training_blueprint(names: Sequence[str], sizes: Sequence[tuple[tuple[int, int], tuple[int, int]]], curves: bool = False):
+def training_blueprint(names: Sequence[str], sizes: Sequence[tuple[tuple[int, int], tuple[int, int]]], curves: bool = False,
+                       baseline: str | None = None):
     """train.rrd's layout: one tab per watched pair (image a above b, the network's lines and epipole beside the
-    ground truth's, keypoints by residual; its SED over ``step`` below), and with ``curves`` a tab of the
-    training and validation curves (TRAIN_PLOTS: the two losses in one plot, the validation SED beside the two
-    constants', legends on) above each validation's verdict against the constants (TRAIN_VERDICT). The time panel
-    opens on ``step``: scrubbing it shows the lines converge."""
+    ground truth's and those of the ``baseline`` named, keypoints by residual; the SEDs over ``step`` below), and with
+    ``curves`` a tab of the training and validation curves (TRAIN_PLOTS: the two losses in one plot, the validation SED
+    beside the two constants', legends on) above each validation's verdict against the constants (TRAIN_VERDICT). The
+    time panel opens on ``step``: scrubbing it shows the lines converge."""
     import rerun.blueprint as rrb
     from rerun.blueprint.archetypes import PlotBackground
 
@@ -536,7 +535,8 @@ def training_blueprint(names: Sequence[str], sizes: Sequence[tuple[tuple[int, in
     tabs = []
     for name, pair_sizes in zip(names, sizes):
         w, h = images_extent(*pair_sizes)
-        images = rrb.Spatial2DView(origin=watch(name), name=f"{name}: network (colour) vs ground truth (white)",
+        vs = f"{NETWORK} (orange) vs {baseline + ' (cyan) vs ' if baseline else ''}ground truth (white)"
+        images = rrb.Spatial2DView(origin=watch(name), name=f"{name}: {vs}",
                                    visual_bounds=rrb.VisualBounds2D(x_range=[-0.5, w - 0.5], y_range=[-0.5, h - 0.5]))
         plot = rrb.TimeSeriesView(origin=watch(name, "sed_px"), name=f"{name}: median SED (px)", background=dark)
         tabs.append(rrb.Vertical(images, plot, row_shares=[3, 1], name=f"pair {name}"))

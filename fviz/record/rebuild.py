@@ -111,10 +111,6 @@ def click_pairs(path: str | Path) -> dict[int, Any]:
     """{pair index: :class:`fviz.record.clickable.PairFs`} of every pair whose images, F's (``pair/fundamental``) and
     matches the recording holds (the ground truth's matches, else the first estimator's); {} for a recording
     written before fviz logged the F's, or without images (eval without --full)."""
-    import numpy as np
-
-    from fviz.record.clickable import PairFs
-
     reader = open_rrd(path)
     tl = L.TIMELINE
     fs: dict[int, dict] = {}
@@ -122,24 +118,64 @@ def click_pairs(path: str | Path) -> dict[int, Any]:
     for ent, is_static, rb in _chunks(path, [_entity(L.PAIR_FS), "+ /est/**"], reader):
         if is_static or tl not in rb.schema.names:
             continue
-        times = _ints(rb.column(tl))
         if ent == L.PAIR_FS:
-            cols = {n: rb.column(n).to_pylist() for n in ("estimators", "F", "size_a", "size_b") if n in rb.schema.names}
-            for i, t in enumerate(times):
-                fs[t] = {k: v[i] for k, v in cols.items()}
+            fs.update(_fundamentals(rb, tl))
         elif L.matches_owner(ent) and "Points2D:positions" in rb.schema.names:
-            for t, p in zip(times, rb.column("Points2D:positions").to_pylist()):
+            for t, p in zip(_ints(rb.column(tl)), rb.column("Points2D:positions").to_pylist()):
                 if p is not None:
                     pts.setdefault(t, {})[L.matches_owner(ent)] = p
     out = {}
     for t, v in fs.items():
-        if len(v) < 4 or not v["estimators"]:
-            continue
         ends = pts.get(t, {})
         owner = L.GT if L.GT in ends else next(iter(ends), None)
-        xy = np.asarray(ends[owner], float).reshape(-1, 2) if owner else np.zeros((0, 2))
-        size_a = tuple(int(s) for s in v["size_a"])
-        n = len(xy) // 2
-        out[t] = PairFs(list(v["estimators"]), np.asarray(v["F"], float).reshape(-1, 3, 3), size_a, tuple(int(s) for s in v["size_b"]),
-                        xy[:n], xy[n:] - offset_b(size_a))
+        if (f := _pair_fs(v, ends[owner] if owner else None)) is not None:
+            out[t] = f
     return out
+
+
+def watch_pairs(path: str | Path) -> dict[str, dict[int, Any]]:
+    """{watched pair k: {step: :class:`fviz.record.clickable.PairFs`}} of train.rrd (:func:`fviz.log_training_step`):
+    per step the F's of ``watch/{k}/fundamental`` (the ground truth's, the network's, a baseline's), coloured as
+    drawn (``layout.watch_colors``), the matches its fixed correspondences (``watch/{k}/points``), root ``watch/{k}``;
+    {} for any other recording, or one written before fviz logged those F's."""
+    reader = open_rrd(path)
+    tl = L.TRAIN_TIMELINE
+    fs: dict[str, dict[int, dict]] = {}
+    ends: dict[str, list] = {}
+    for ent, is_static, rb in _chunks(path, "+ /watch/**", reader):
+        name, _, what = ent.removeprefix(L.WATCH + "/").partition("/")
+        if is_static or tl not in rb.schema.names:
+            continue
+        if what == "fundamental":
+            fs.setdefault(name, {}).update(_fundamentals(rb, tl))
+        elif what == "points" and name not in ends and "Points2D:positions" in rb.schema.names:
+            ends[name] = next((p for p in rb.column("Points2D:positions").to_pylist() if p is not None), None)
+    c = L.watch_colors()
+    out: dict[str, dict[int, Any]] = {}
+    for name, steps in fs.items():
+        for t, v in sorted(steps.items()):
+            colors = {k: {L.GT: c[L.GT], L.NETWORK: c[L.NET]}.get(k, c[L.BASELINE]) for k in v.get("estimators") or ()}
+            if (f := _pair_fs(v, ends.get(name), colors, L.watch(name))) is not None:
+                out.setdefault(name, {})[t] = f
+    return out
+
+
+def _fundamentals(rb, timeline: str) -> dict[int, dict]:
+    """{time: {estimators, F, size_a, size_b}} of a chunk of ``pair/fundamental`` (or ``watch/{k}/fundamental``)."""
+    cols = {n: rb.column(n).to_pylist() for n in ("estimators", "F", "size_a", "size_b") if n in rb.schema.names}
+    return {t: {k: v[i] for k, v in cols.items()} for i, t in enumerate(_ints(rb.column(timeline)))}
+
+
+def _pair_fs(v: dict, ends, colors: dict | None = None, root: str = ""):
+    """A :class:`fviz.record.clickable.PairFs` of one row of :func:`_fundamentals` and its match ends (2N, 2) as drawn
+    (b's shifted by ``offset_b``), None without F's."""
+    import numpy as np
+
+    from fviz.record.clickable import PairFs
+
+    if len(v) < 4 or not v["estimators"]:
+        return None
+    xy = np.asarray(ends if ends is not None else np.zeros((0, 2)), float).reshape(-1, 2)
+    size_a, n = tuple(int(s) for s in v["size_a"]), len(xy) // 2
+    return PairFs(list(v["estimators"]), np.asarray(v["F"], float).reshape(-1, 3, 3), size_a, tuple(int(s) for s in v["size_b"]),
+                  xy[:n], xy[n:] - offset_b(size_a), colors or {}, root)

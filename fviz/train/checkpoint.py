@@ -154,7 +154,7 @@ class RunState:
     history: list[dict[str, Any]] = field(default_factory=list)  # every validation: {"step", "epoch", metrics...}
     recording_id: str = field(default_factory=lambda: str(uuid.uuid4()))  # train.rrd's, the same across resumes
     curves: dict = field(default_factory=dict)  # fviz.train.curves.Curves.state()
-    watch: list = field(default_factory=list)  # the network's F on the watched pairs, per step
+    watch: list = field(default_factory=list)  # per step: the network's F on the watched pairs, the constant's
     notes: list = field(default_factory=list)  # each validation's verdict against the constants, per step
     target_mean: dict = field(default_factory=dict)  # fviz.train.validation.TargetMean.state()
 

@@ -1,10 +1,13 @@
 """What a training run shows while it runs: its curves in ``train.rrd`` and its progress bar on the console.
 
 ``train.rrd`` (:class:`Curves`): a Rerun recording of the curves ``train/*`` and ``val/*`` on the ``step`` timeline,
-each validation's verdict against the constants (``val/verdict``), and of the network on ``train.watch_pairs``
-fixed validation pairs every ``train.watch_every`` steps or at each checkpoint: its epipolar lines beside the
-ground truth's, through :func:`fviz.log_training_step`; rewritten complete, footer included, under a temporary
-name and renamed into place at each checkpoint: after SIGKILL it is the last checkpoint's complete recording.
+each validation's verdict against the constants (``val/verdict``), and of the network on ``train.watch_pairs`` fixed
+validation pairs every ``train.watch_every`` steps or at each checkpoint: its epipolar lines beside the ground
+truth's and those of the constant validation sets it beside (the training pairs' mean F so far,
+:class:`fviz.train.validation.TargetMean`: the same F in every pair's model-input pixels, as validation applies it),
+through :func:`fviz.log_training_step` (a click in ``fviz open train.rrd --web`` draws a point's lines under each);
+rewritten complete, footer included, under a temporary name and renamed into place at each checkpoint: after SIGKILL
+it is the last checkpoint's complete recording.
 ``train/loss`` is the loss of each training batch in training mode (dropout on, BatchNorm on the batch's
 statistics); ``val/loss`` the mean over the held-out validation pairs in eval mode (no dropout, BatchNorm's
 running statistics, which lag behind the weights early in a run: a large gap in the first hundred steps is that,
@@ -26,6 +29,8 @@ import torch
 
 from fviz.train.heldout import NO_BETTER
 
+BASELINE = "mean F"  # the watched pairs' constant: the training pairs' mean F (validation's mean_f)
+
 
 class Curves:
     """Training curves kept in memory and written as a *complete* Rerun .rrd at every checkpoint.
@@ -46,9 +51,10 @@ class Curves:
         self.series: dict[str, tuple[list[int], list[float]]] = {
             k: (list(v[0]), list(v[1])) for k, v in (state or {}).items()
         }
-        # the watched validation pairs (fviz.log_training_step): the pairs, and the network's F on them per frame
+        # the watched validation pairs (fviz.log_training_step): the pairs, and per frame the network's F on them and
+        # the constant's (BASELINE; None before the first step; frames of an older fviz have none)
         self.pairs: list = []
-        self.frames: list[tuple[int, list]] = [(int(s), F) for s, F in (watch or [])]
+        self.frames: list[tuple[int, list, list | None]] = [(int(f[0]), f[1], f[2] if len(f) > 2 else None) for f in (watch or [])]
         self.watch_seconds = 0.0  # spent on them: forward passes and logging
         # each validation's line setting the network beside the constants (versus_constants), a TextLog on VERDICT
         self.notes: list[tuple[int, str]] = [(int(s), str(t)) for s, t in (notes or [])]
@@ -68,10 +74,12 @@ class Curves:
         """Keep a validation's verdict line (one per step: the last counts)."""
         self.notes = [n for n in self.notes if n[0] != step] + [(int(step), text)]
 
-    def watch(self, step: int, F_pred: torch.Tensor) -> None:
-        """Keep the network's F (B, 3, 3) on the watched pairs at ``step`` (one frame; a step's last one counts)."""
+    def watch(self, step: int, F_pred: torch.Tensor, F_constant: torch.Tensor | None = None) -> None:
+        """Keep the network's F (B, 3, 3) on the watched pairs at ``step`` and the constant's (3, 3), the same for all
+        (one frame; a step's last one counts)."""
         F = F_pred.detach().float().cpu().tolist()
-        self.frames = [f for f in self.frames if f[0] != step] + [(int(step), F)]
+        Fc = None if F_constant is None else F_constant.detach().double().cpu().tolist()
+        self.frames = [f for f in self.frames if f[0] != step] + [(int(step), F, Fc)]
 
     def snapshot(self) -> None:
         """Make ``path`` a complete recording of everything logged so far (atomic rename)."""
@@ -80,7 +88,8 @@ class Curves:
 
         rr = self.rr
         names = [str(i) for i in range(len(self.pairs))]
-        bp = training_blueprint(names, [(p.size_a, p.size_b) for p in self.pairs], curves=True)
+        bp = training_blueprint(names, [(p.size_a, p.size_b) for p in self.pairs], curves=True,
+                                baseline=BASELINE if any(f[2] is not None for f in self.frames) else None)
         # through fviz's writer: a new file of its own (never a planted link), renamed over path only when
         # complete, and a full disk raises (Rerun's own file sink would stop with a log line and never return)
         with RecordingWriter(self.path, "fviz-train", blueprint=bp, recording_id=self.recording_id) as w:
@@ -98,8 +107,8 @@ class Curves:
                 from fviz.record.training import log_training_step
 
                 t0 = time.perf_counter()
-                for step, F in self.frames:
-                    log_training_step(rec, step, self.pairs, F, names, blueprint=False)
+                for step, F, Fc in self.frames:
+                    log_training_step(rec, step, self.pairs, F, names, blueprint=False, F_baseline=Fc, baseline_name=BASELINE)
                 self.watch_seconds += time.perf_counter() - t0
 
     close = snapshot

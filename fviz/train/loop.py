@@ -382,7 +382,7 @@ class _Run:
         with torch.no_grad(), self._autocast():
             F_pred = self.model(*self.watch_batch, strict_norm=False)
         self.model.train(was_training)
-        self.curves.watch(self.state.step, F_pred)
+        self.curves.watch(self.state.step, F_pred, self.target_mean.F())  # beside validation's constant (mean_f)
         self.curves.watch_seconds += time.perf_counter() - t0
 
     def run_validation(self) -> None:

@@ -73,9 +73,8 @@ class ClickApp:
     the last ``KEEP_EVENTS`` events received, each cut to ``KEEP_EVENT_CHARS`` (both bounded)."""
 
     def __init__(self, path: Path, blueprint: Path | None = None, editor=None, export_to: Path | None = None, run=None):
-        from fviz.record import layout as L
         from fviz.record.reader import store_ids, timelines
-        from fviz.record.rebuild import click_pairs
+        from fviz.record.rebuild import click_pairs, watch_pairs
         from fviz.rerun_compat import check_version
 
         check_version()  # another rerun: one line when the server starts, not an error per click
@@ -83,7 +82,8 @@ class ClickApp:
         self.run = run  # the run's pairs to draw on demand (``indices``, ``load(i)``): fviz.interactive.OnDemand
         self.ids = store_ids(path)
         self.pairs = click_pairs(path)
-        self.stamps = tuple(t for t in timelines(path) if t == L.PROBE_TIMELINE)
+        self.watched = {} if self.pairs else watch_pairs(path)  # train.rrd's watched pairs, per step
+        self.timelines = timelines(path)
         self.timings: collections.deque[float] = collections.deque(maxlen=KEEP_TIMINGS)
         self.events: collections.deque[str] = collections.deque(maxlen=KEEP_EVENTS)
 
@@ -95,13 +95,14 @@ class ClickApp:
         send back: the bytes of a click's or an edit's data, and an edit's status (JSON text))."""
         import rerun as rr
 
-        from fviz.interactive import ClickSession, OnDemand
+        from fviz.interactive import OnDemand, session_of
         from fviz.rerun_compat import viewer_event_from_json
 
         rec = rr.RecordingStream(self.ids[0], recording_id=self.ids[1], send_properties=False)
         stream = rec.binary_stream()
         on_demand = OnDemand(rec, self.run.indices, self.run.load, self._run_blueprint) if self.run is not None else None
-        session = ClickSession(rec, self.pairs, self.stamps, on_demand)
+        session = session_of(rec, self.pairs, self.timelines, self.watched)
+        session.on_demand = on_demand
         edits = self.editor(rec, session) if self.editor is not None else None
         hello = [json.dumps({"fviz": "edit", **edits.status(), **self._tools(edits)})] if edits is not None else []
         box = [False]  # drawing a box: the next two clicks are its corners
@@ -165,7 +166,7 @@ def clicked_pixel(event, session) -> tuple[str, object] | None:
     """(view, pixel) a selection event's position falls on, in the pair at the session's cursor; None otherwise."""
     from fviz.interactive import locate
 
-    fs = session.pairs.get(session.index)
+    fs = session.current()
     for item in getattr(event, "items", None) or () if getattr(event, "type", None) == "selection_change" else ():
         if getattr(item, "type", None) == "entity" and item.position is not None and fs is not None:
             return locate(item.position, fs.size_a, fs.size_b)
@@ -422,6 +423,8 @@ def serve_clicks(path: Path, host: str = "127.0.0.1", web_port: int = 9090, blue
         what = "; edit the matches with the tools at the top" if editor is not None else ""
         what += ("; right-click a plot (or move the time cursor) to draw that pair" if run is not None else "")
         hint = (f"click a point of either image for its epipolar lines{what}" if server.app.pairs or run is not None else
+                "click a point of a watched pair for its epipolar lines under the ground truth, the network at the time "
+                "cursor's step and the baseline" if server.app.watched else
                 "no pair images in this recording, nothing to click: eval --full records them")
         print(f"web viewer: {server.url}  ({hint}; Ctrl-C to stop)", flush=True)
         while True:  # short naps: a signal the kernel hands to a server thread only wakes the main one at its next tick
