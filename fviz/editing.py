@@ -45,7 +45,7 @@ class EditSession:
         self.excluded = np.zeros(len(base.matches), bool)
         self.settings: dict[str, dict[str, float]] = {}
         self.result = base
-        self.box: tuple[str, np.ndarray] | None = None  # the first corner of a box being drawn (the page)
+        self.box: list[tuple[str, np.ndarray]] | None = None  # a box being drawn (the page): its corners so far
 
     @property
     def n(self) -> int:
@@ -116,11 +116,15 @@ class EditSession:
         self.excluded |= np.all((ends >= lo) & (ends <= hi), axis=1)
         return self.apply()
 
+    def start_box(self) -> None:
+        """The next two clicks in one image (:meth:`corner`) are a box's corners (the page's "exclude in a box")."""
+        self.box = []
+
     def corner(self, view: str, point) -> Any | None:
-        """One corner of a box (the page's "exclude in a box": two clicks in one image) -> the new result once the
-        second corner is given, else None. A corner in the other image starts the box again."""
-        first = self.box
-        self.box = (view, np.asarray(point, float)[:2])
+        """One corner of the box being drawn -> the new result once the second corner is given, else None. A corner
+        in the other image starts the box again."""
+        first = self.box[0] if self.box else None
+        self.box = [(view, np.asarray(point, float)[:2])]
         if first is None or first[0] != view:
             return None
         self.box = None

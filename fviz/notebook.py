@@ -156,8 +156,7 @@ def show(pair, result, width: int | str = "auto", height: int | str = "auto", n_
     if getattr(result, "_inspected", None) is not None and result.matches is not None:  # inspect_pair's: editable
         from fviz.api import edit
 
-        edits = edit(pair, result, rec, lines=n_lines)
-        edits.clicks = clicks
+        edits = edit(pair, result, rec, lines=n_lines, clicks=clicks)
     return ClickViewer(viewer, rec, clicks, edits)
 
 

@@ -5,8 +5,6 @@ user to click."""
 from __future__ import annotations
 
 import pytest
-from cli_util import run_fviz
-
 import fviz
 
 
@@ -37,7 +35,3 @@ def test_open_hints_at_clicks_only_where_there_is_something_to_click(recordings,
     browse.open_recording(run)
     assert seen[1].startswith("clicks (a point's epipolar lines") and seen[3] == browse.NO_CLICKS
 
-
-def test_open_of_a_missing_file_is_still_one_line(tmp_path):
-    r = run_fviz("open", tmp_path / "none.rrd")
-    assert r.returncode == 2 and r.stderr.count("\n") == 1

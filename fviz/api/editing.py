@@ -72,13 +72,11 @@ def reestimate(pair: Pair, result: PairResult, keep: np.ndarray | None = None, *
         A new PairResult (the paper's protocol on the kept matches, diagnosis, verdict), whose ``matches`` are the
         kept ones, in order.
     """
-    from fviz.evaluate import evaluate_pair
-
     check_result_of(pair, result)
     inspected: Inspected | None = getattr(result, "_inspected", None)
     if inspected is None or result.matches is None:
         raise FvizError("result: not a result of fviz.inspect_pair (with matches) in this session: evaluate the pair with it first")
-    m, n = result.matches, len(result.matches)
+    n = len(result.matches)
     keep = np.ones(n, bool) if keep is None else np.asarray(keep)
     if keep.dtype == bool:
         if keep.shape != (n,):
@@ -93,31 +91,37 @@ def reestimate(pair: Pair, result: PairResult, keep: np.ndarray | None = None, *
     for key, value in (("threshold", threshold), ("max_iters", max_iters)):
         for name, v in _per_estimator(value, names, key).items():
             settings.setdefault(name, {})[key] = v
-    ests = _resolved(inspected, settings)
-    from fviz.estimators.keypoints import Matches
+    return _evaluated(pair, result, idx, settings)
 
-    kept = Matches(m.idx[idx], m.x_a[idx], m.x_b[idx], m.distance[idx], None if m.scores is None else m.scores[idx])
+
+def _evaluated(pair: Pair, result: PairResult, idx: np.ndarray, settings: dict[str, dict[str, Any]]) -> PairResult:
+    """``result``'s estimators (those with ``settings`` resolved again) on its matches at ``idx``, judged."""
+    from fviz.evaluate import evaluate_pair
+
+    inspected: Inspected = result._inspected
+    ests = _resolved(inspected, settings)
     new = evaluate_pair(pair, ests, inspected.options.feature_config(), inspected.norm, inspected.eval_threshold,
-                        inspected.threshold, timeout=inspected.timeout, matches=kept)
+                        inspected.threshold, timeout=inspected.timeout, matches=result.matches.take(idx))
     new.n_keypoints = result.n_keypoints
     return judged(pair, replace(inspected, ests=ests), new)
 
 
 @python_errors
-def edit(pair: Pair, result: PairResult, rec: Any = None, *, index: int = 0, lines: int = 30, probe: int = 20) -> EditSession:
+def edit(pair: Pair, result: PairResult, rec: Any = None, *, index: int = 0, lines: int = 30, probe: int = 20,
+         clicks: Any = None, legend: bool = True) -> EditSession:
     """An :class:`fviz.editing.EditSession` on ``result``'s matches: ``exclude``, ``exclude_above``, ``exclude_box``,
     ``restore``, ``toggle``, ``set`` (threshold / max_iters), ``reset``, ``export``; each returns the new result
     (:func:`reestimate`) and, with ``rec`` (a ``rerun.RecordingStream``), draws it at ``index`` as
-    :func:`fviz.log_result` does, the excluded matches as grey dots."""
+    :func:`fviz.log_result` does, the excluded matches as grey dots; ``clicks``: the viewer's
+    :class:`fviz.interactive.ClickSession`, answered with the new F's; ``legend`` False: the viewer has the residual
+    legend from its file (fviz's page)."""
     from fviz.editing import EditSession
 
     check_result_of(pair, result)
-    if getattr(result, "_inspected", None) is None:
+    if getattr(result, "_inspected", None) is None or result.matches is None:
         raise FvizError("result: not a result of fviz.inspect_pair in this session: evaluate the pair with it first")
 
     def estimate(keep: np.ndarray, settings: dict) -> Any:
-        th = {k: s["threshold"] for k, s in settings.items() if s.get("threshold") is not None}
-        it = {k: s["max_iters"] for k, s in settings.items() if s.get("max_iters") is not None}
-        return reestimate(pair, result, keep, threshold=th or None, max_iters=it or None)
+        return _evaluated(pair, result, np.flatnonzero(keep), settings)
 
-    return EditSession(pair, result, estimate, rec, index, lines=lines, probe=probe)
+    return EditSession(pair, result, estimate, rec, index, clicks, lines=lines, probe=probe, legend=legend)

@@ -45,11 +45,9 @@ def page_editor(pair, result, lines: int = 30, probe: int = 20):
     from fviz.api.editing import edit
 
     def editor(rec, clicks):
-        session = edit(pair, result, rec, lines=lines, probe=probe)
         # the page's viewer has the legend from the file; logged again from this stream, Rerun 0.41's web viewer
         # drops it and colours the keypoints by class id at random
-        session.clicks, session.legend = clicks, False
-        return session
+        return edit(pair, result, rec, lines=lines, probe=probe, clicks=clicks, legend=False)
 
     return editor
 

@@ -35,3 +35,8 @@ class Matches:
 
     def __len__(self) -> int:
         return len(self.idx)
+
+    def take(self, idx: np.ndarray) -> "Matches":
+        """The matches at ``idx`` (K,) indices, in that order."""
+        return Matches(self.idx[idx], self.x_a[idx], self.x_b[idx], self.distance[idx],
+                       None if self.scores is None else self.scores[idx])

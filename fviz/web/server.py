@@ -105,7 +105,6 @@ class ClickApp:
         session.on_demand = on_demand
         edits = self.editor(rec, session) if self.editor is not None else None
         hello = [json.dumps({"fviz": "edit", **edits.status(), **self._tools(edits)})] if edits is not None else []
-        box = [False]  # drawing a box: the next two clicks are its corners
 
         def answer(text: str) -> list[bytes | str]:
             t0 = time.perf_counter()
@@ -115,7 +114,7 @@ class ClickApp:
                 if edits is None:
                     return [json.dumps({"fviz": "error", "error": "this recording cannot be edited here"})]
                 if command.get("op") == "box":
-                    edits.box, box[0] = None, True
+                    edits.start_box()
                     return [json.dumps({"fviz": "box", "text": "box: click two corners in one image"})]
                 try:
                     reply = {"fviz": "edit", **edits.command(command, self.export_to)}
@@ -128,10 +127,9 @@ class ClickApp:
                 event = viewer_event_from_json(text)
             except (ValueError, KeyError):
                 return []
-            if box[0] and (where := clicked_pixel(event, session)) is not None:
+            if edits is not None and edits.box is not None and (where := clicked_pixel(event, session)) is not None:
                 if edits.corner(*where) is None:
                     return [json.dumps({"fviz": "box", "text": "box: the first corner is set; click the other one in the same image"})]
-                box[0] = False
                 data = stream.read(flush=True)
                 self.timings.append(time.perf_counter() - t0)
                 return [data, json.dumps({"fviz": "edit", **edits.status()})]
