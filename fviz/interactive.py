@@ -15,7 +15,8 @@ as a selection (``SelectionChangeEvent``) whose item carries the entity, the ins
   stream whose bytes go to that viewer (the notebook widget, :mod:`fviz.web`); :class:`WatchSession` the same on
   train.rrd's watched pairs, under the ground truth's, the network's (at each step) and a baseline's F;
 - :class:`OnDemand`: a run's pairs (eval.rrd without --full) drawn into that stream when the time cursor reaches
-  them (a right-click in a plot), so that they can be clicked too.
+  them (a right-click in a plot), or when their point of compare.rrd's chart is clicked, so that they can be clicked
+  too.
 """
 
 from __future__ import annotations
@@ -279,7 +280,7 @@ class ClickSession:
             self._draw(event.time)
         elif kind == "selection_change":
             for item in event.items:
-                if getattr(item, "type", None) == "entity":
+                if getattr(item, "type", None) == "entity" and not self._on_chart(item):
                     c = self.select(item.entity_path, item.position, item.instance_id)
                     if c is not None:
                         return c
@@ -288,6 +289,18 @@ class ClickSession:
     def current(self) -> PairFs | None:
         """The pair at the time cursor (None: none)."""
         return self.pairs.get(self.index) if self.index is not None else None
+
+    def _on_chart(self, item) -> bool:
+        """Whether a selection is on a chart (compare.rrd's, inspect's bars: ``layout.COMPARE``), where no image is;
+        a pair's point there (``run.pick``, :class:`OnDemand`) is drawn and shown."""
+        path = (item.entity_path or "").strip("/")
+        index = self.on_demand.run.pick(item.entity_path, item.instance_id, item.position, item.view_name) \
+            if self.on_demand is not None else None
+        if index is not None and (fs := self.on_demand.show(index)) is not None:
+            self.pairs = dict(sorted({**self.pairs, index: fs}.items()))
+        if index in self.pairs:
+            self.timeline, self.index = L.TIMELINE, index
+        return index is not None or path == L.COMPARE or path.startswith(L.COMPARE + "/")
 
     def select(self, entity_path: str | None, position=None, instance_id: int | None = None) -> Click | None:
         """A selected entity (and position in the root frame, instance) on the current pair -> the click
@@ -353,25 +366,40 @@ class WatchSession(ClickSession):
 
 
 class OnDemand:
-    """A run's pairs drawn into a viewer's stream when its time cursor first reaches them: what ``eval --full`` would
-    have recorded of pair i (images, keypoints, lines, epipoles: :func:`fviz.record.writer.log_pair`) at ``pair`` = i,
-    for a run recorded without it (eval.rrd holds the metrics alone). ``indices``: the run's pairs; ``load(i) ->
-    (Pair, PairResult)`` (:func:`fviz.read_pair`); ``blueprint(sizes)``: the run's layout with views of images of
-    ``sizes``, sent with the first pair drawn (and again for a pair of another size).
+    """A run's pairs drawn into a viewer's stream when its time cursor first reaches them, or when a selection picks
+    one (a pair's point of compare.rrd's chart): what ``eval --full`` would have recorded of pair i (images,
+    keypoints, lines, epipoles: :func:`fviz.record.writer.log_pair`) at ``pair`` = i, for a recording without it
+    (eval.rrd holds the metrics alone, compare.rrd a chart). ``run`` (:mod:`fviz.api.runpairs`): ``indices`` (its
+    pairs), ``load(i) -> (Pair, PairResult)`` (:func:`fviz.read_pair`), ``pick(entity_path, instance_id, position,
+    view_name) -> i or None``, ``blueprint(sizes, names)``: the layout with views of images of ``sizes``, sent with
+    the first pair drawn (and again for a pair of another size).
 
     Only the pairs drawn carry images: at the next pair of the run (not drawn yet) what pair i drew is cleared, so
     that a pair never shows another's images; what a drawn neighbour lacks is cleared at it too."""
 
-    def __init__(self, rec, indices, load, blueprint):
-        self.rec, self.indices, self.load, self.blueprint = rec, sorted(indices), load, blueprint
+    def __init__(self, rec, run):
+        self.rec, self.run, self.indices = rec, run, sorted(run.indices)
         self.drawn: dict[int, set[str]] = {}  # index -> the paths its pair logged
         self.failed: dict[int, str] = {}
         self.sizes: set[tuple] = set()
         self.changed = False  # data logged since the owner last looked (take it with :meth:`take`)
+        self.goto: int | None = None  # a pair picked: the viewer's time cursor to move there (:meth:`take`)
+        self.error: str | None = None  # why the last pair to draw could not be read
 
-    def take(self) -> bool:
-        changed, self.changed = self.changed, False
-        return changed
+    def take(self) -> tuple[bool, int | None, str | None]:
+        """Since the last call: (whether data was logged, the pair to move the viewer's time cursor to, why a pair
+        could not be drawn)."""
+        out = self.changed, self.goto, self.error
+        self.changed, self.goto, self.error = False, None, None
+        return out
+
+    def show(self, index: int) -> PairFs | None:
+        """Pair ``index`` drawn (:meth:`draw`) and the viewer to be moved to it, if it could be (else ``error``
+        says why)."""
+        fs = self.draw(index)
+        self.goto = index if index in self.drawn else None
+        self.error = self.failed.get(index) if self.goto is None else None
+        return fs
 
     def draw(self, index: int) -> PairFs | None:
         """Pair ``index`` drawn (once): its :class:`PairFs`; None when it is not the run's or cannot be read."""
@@ -385,9 +413,9 @@ class OnDemand:
         if index not in self.indices or index in self.drawn or index in self.failed:
             return None
         try:
-            pair, result = self.load(index)
+            pair, result = self.run.load(index)
         except FvizError as exc:  # the record says why (its summary is in eval.rrd already)
-            self.failed[index] = str(exc)
+            self.failed[index] = self.error = str(exc)
             return None
         if not self.drawn:
             log_static(self.rec, [r.name for r in result.estimators])  # the residual classes' colours
@@ -406,7 +434,8 @@ class OnDemand:
         size = (tuple(pair.size_a), tuple(pair.size_b))
         if size not in self.sizes:
             self.sizes.add(size)
-            self.rec.send_blueprint(self.blueprint(sorted(self.sizes) if len(self.sizes) > 1 else size))
+            names = [r.name for r in result.estimators]
+            self.rec.send_blueprint(self.run.blueprint(sorted(self.sizes) if len(self.sizes) > 1 else size, names))
         self.rec.set_time(L.TIMELINE, sequence=index)
         self.changed = True
         return pair_fs(result, pair.size_a, pair.size_b)

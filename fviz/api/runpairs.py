@@ -6,6 +6,10 @@ evaluated again), and two runs on one pair as one result. ``fviz open RUN --pair
     pair, both = fviz.read_pair("runs/a", 3, versus="runs/b")   # F's "a-magsac", "b-magsac", ...: one click, both runs
 
 Bad input raises :class:`fviz.errors.FvizError` with a one-line message that starts with the parameter's name.
+
+fviz's page draws a recording's pairs on demand from the run(s) behind it (:func:`run_of_recording`): a run's eval.rrd
+(:class:`RunPairs`: the pair its time cursor reaches) and a compare.rrd (:class:`ComparedPairs`: the pair whose point
+of the chart is clicked).
 """
 
 from __future__ import annotations
@@ -93,13 +97,19 @@ def read_pair(run: Run | str | os.PathLike, pair: int | str, *, versus: Run | st
     a = _reopened(run, pair, "--pair" if from_command_line() else "pair", "run")
     if versus is None:
         return a.pair, judged(a.pair, _inspected(a), a.result)
+    b = _reopened(versus, a.record["key"], "--versus", "--versus")  # python_errors names the parameter
+    return _both(a, b, names, _folder(versus))
+
+
+def _both(a: Reopened, b: Reopened, labels: tuple[str, str], folder_b: Path) -> tuple[Pair, PairResult]:
+    """Two runs' evaluations of one pair as one result (:func:`fviz.run.reopen.versus`), judged; FvizError when run b's
+    pair of that name is another pair."""
     from fviz.run.reopen import versus as both
 
-    b = _reopened(versus, a.record["key"], "--versus", "--versus")  # python_errors names the parameter
     if pair_fingerprint(a.pair) != pair_fingerprint(b.pair):
-        raise FvizError(f"--versus {_folder(versus)}: its pair {a.record['key']} has other pixels or another ground truth "
+        raise FvizError(f"--versus {folder_b}: its pair {a.record['key']} has other pixels or another ground truth "
                         "than the first run's: not the same pair")
-    result, ests, specs = both(a, b, names)
+    result, ests, specs = both(a, b, labels)
     return a.pair, judged(a.pair, _inspected(a, ests, specs), result)
 
 
@@ -123,6 +133,8 @@ class RunPairs:
     the page's time cursor reaches one (:class:`fviz.interactive.OnDemand`): one at a time, with one evaluator (a
     network loads once). ``indices``: the pairs the run evaluated (their place on the ``pair`` timeline)."""
 
+    hint = "right-click a plot (or move the time cursor) to draw that pair"
+
     def __init__(self, out_dir: Path):
         import threading
 
@@ -133,20 +145,80 @@ class RunPairs:
         self._evaluator = None  # made on the first pair read (its estimators resolved once)
         self._lock = threading.Lock()  # pages are answered on a pool of threads; an evaluator is one pair at a time
 
-    def load(self, index: int) -> tuple[Pair, PairResult]:
+    def reopened(self, which: int | str) -> Reopened:
+        """Pair ``which`` (index or name) evaluated again as the run did (:func:`fviz.run.reopen.reopen`)."""
         from fviz.run.evaluator import PairEvaluator
         from fviz.run.reopen import reopen
 
         with self._lock:
             self._evaluator = self._evaluator or PairEvaluator(self.config, self.out_dir)
-            r = reopen(self.out_dir, self.config, index, evaluator=self._evaluator)
+            return reopen(self.out_dir, self.config, which, evaluator=self._evaluator)
+
+    def load(self, index: int) -> tuple[Pair, PairResult]:
+        r = self.reopened(index)
         return r.pair, judged(r.pair, _inspected(r), r.result)
 
+    def pick(self, entity_path, instance_id=None, position=None, view_name=None) -> int | None:
+        """No selection picks a pair of eval.rrd: its plots move the time cursor (a right-click)."""
+        return None
 
-def run_of_recording(path: str | os.PathLike) -> RunPairs | None:
-    """The run whose eval.rrd ``path`` is (run.json beside it), its pairs to read on demand; None for any other
-    recording."""
+    def blueprint(self, sizes, names=()):
+        """The run's layout as ``eval --full`` stores it, its views framing images of ``sizes``."""
+        from fviz.record.rebuild import recording_blueprint
+        from fviz.run.config import RRD_FILE
+
+        return recording_blueprint(self.out_dir / RRD_FILE, sizes=sizes)[1]
+
+
+class ComparedPairs:
+    """The pairs a compare.rrd plots (``chart``: :func:`fviz.record.compare_plot.read_chart`), read on demand from the
+    run(s) compared when fviz's page gets a click on a pair's point: as :func:`read_pair` reads them, with the second
+    run's F's (``versus``) when two runs were compared. ``indices``: the pairs' places in the first run."""
+
+    hint = "click a pair's point in the chart to draw that pair below it"
+
+    def __init__(self, chart):
+        a, b = chart.runs
+        self.chart, self.a = chart, RunPairs(a)
+        self.b = RunPairs(b) if Path(b).resolve() != Path(a).resolve() else None
+        self.labels = run_labels(a, b) if self.b is not None else None
+        self.names = dict(zip(chart.index, chart.names))
+        self.indices = sorted(self.names)
+
+    def load(self, index: int) -> tuple[Pair, PairResult]:
+        a = self.a.reopened(self.names[index])
+        if self.b is None:
+            return a.pair, judged(a.pair, _inspected(a), a.result)
+        return _both(a, self.b.reopened(a.record["key"]), self.labels, self.b.out_dir)
+
+    def pick(self, entity_path, instance_id=None, position=None, view_name=None) -> int | None:
+        """A selection on the chart -> the index of the pair clicked, None elsewhere (:meth:`Chart.pair_at`)."""
+        k = self.chart.pair_at(entity_path, instance_id, position, view_name)
+        return None if k is None else self.chart.index[k]
+
+    def blueprint(self, sizes, names=()):
+        """The chart above the pair's images (F's ``names``)."""
+        from fviz.record.compare_plot import compare_blueprint
+
+        return compare_blueprint(self.chart.title, sizes, names)
+
+
+def run_of_recording(path: str | os.PathLike) -> RunPairs | ComparedPairs | None:
+    """The pairs behind a recording that fviz's page draws on demand: the run whose eval.rrd ``path`` is (run.json
+    beside it), the run(s) a compare.rrd compared (a warning when they are gone); None for any other recording."""
+    import sys
+
+    from fviz.record.compare_plot import read_chart
     from fviz.run.config import RRD_FILE, RUN_FILE
 
     path = Path(path)
-    return RunPairs(path.parent) if path.name == RRD_FILE and (path.parent / RUN_FILE).is_file() else None
+    if path.name == RRD_FILE and (path.parent / RUN_FILE).is_file():
+        return RunPairs(path.parent)
+    chart = read_chart(path)
+    if chart is None:
+        return None
+    try:
+        return ComparedPairs(chart)
+    except FvizError as exc:
+        print(f"warning: {path}: a click on a pair draws nothing: {exc}", file=sys.stderr)
+        return None

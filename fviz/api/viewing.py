@@ -20,7 +20,8 @@ def serve(path: Path, bind: str, port: int, web_port: int, blueprint: Optional[P
     Rerun's own web viewer (``rerun --serve-web``: no clicks). With the ``pair`` and its ``result`` (inspect's), the
     page's edit tools exclude matches and re-estimate (:func:`fviz.edit`), exporting beside the recording
     (``PATH.edited/``). A run's eval.rrd (run.json beside it): a pair the time cursor reaches (a right-click in a plot)
-    is read from the run (:func:`fviz.read_pair`) and drawn, its images, matches and lines clickable."""
+    is read from the run (:func:`fviz.read_pair`) and drawn, its images, matches and lines clickable; a compare.rrd: a
+    pair whose point of the chart is clicked, from the run(s) compared."""
     from fviz.viewer import serve_web
     from fviz.web.server import serve_clicks
 
@@ -31,7 +32,7 @@ def serve(path: Path, bind: str, port: int, web_port: int, blueprint: Optional[P
         print(f"warning: {word('--bind')} {bind}: the viewer and the recording are reachable from other machines", file=sys.stderr)
     if static:
         serve_web(path, bind, port, web_port, blueprint)
-    elif pair is None:  # a run's eval.rrd: its pairs drawn on demand (fviz.interactive.OnDemand)
+    elif pair is None:  # a run's eval.rrd, a compare.rrd: their pairs drawn on demand (fviz.interactive.OnDemand)
         from fviz.api.runpairs import run_of_recording
 
         serve_clicks(path, bind, web_port, blueprint, run=run_of_recording(path))

@@ -79,7 +79,7 @@ class ClickApp:
 
         check_version()  # another rerun: one line when the server starts, not an error per click
         self.path, self.blueprint, self.editor, self.export_to = Path(path), blueprint, editor, export_to
-        self.run = run  # the run's pairs to draw on demand (``indices``, ``load(i)``): fviz.interactive.OnDemand
+        self.run = run  # the pairs behind the recording, drawn on demand (fviz.api.runpairs): fviz.interactive.OnDemand
         self.ids = store_ids(path)
         self.pairs = click_pairs(path)
         self.watched = {} if self.pairs else watch_pairs(path)  # train.rrd's watched pairs, per step
@@ -100,7 +100,7 @@ class ClickApp:
 
         rec = rr.RecordingStream(self.ids[0], recording_id=self.ids[1], send_properties=False)
         stream = rec.binary_stream()
-        on_demand = OnDemand(rec, self.run.indices, self.run.load, self._run_blueprint) if self.run is not None else None
+        on_demand = OnDemand(rec, self.run) if self.run is not None else None
         session = session_of(rec, self.pairs, self.timelines, self.watched)
         session.on_demand = on_demand
         edits = self.editor(rec, session) if self.editor is not None else None
@@ -134,21 +134,18 @@ class ClickApp:
                 self.timings.append(time.perf_counter() - t0)
                 return [data, json.dumps({"fviz": "edit", **edits.status()})]
             c = session.on_event(event)
-            if c is None and not (on_demand is not None and on_demand.take()):  # neither a click nor a pair drawn
-                return []
+            drawn, goto, error = on_demand.take() if on_demand is not None else (False, None, None)
+            failed = [json.dumps({"fviz": "error", "error": error})] if error else []
+            if c is None and not drawn and goto is None:  # neither a click nor a pair drawn or picked
+                return failed
             data = stream.read(flush=True)
             if c is not None:
                 self.timings.append(time.perf_counter() - t0)
             clicked = [json.dumps({"fviz": "click", "match": c.match})] if edits is not None and c is not None else []
-            return [data, *clicked]
+            moved = [json.dumps({"fviz": "time", "timeline": "pair", "sequence": goto})] if goto is not None else []
+            return [b for b in (data,) if b] + clicked + moved + failed
 
         return hello, answer
-
-    def _run_blueprint(self, sizes):
-        """The run's layout as ``eval --full`` stores it, its views framing images of ``sizes``."""
-        from fviz.record.rebuild import recording_blueprint
-
-        return recording_blueprint(self.path, sizes=sizes)[1]
 
     def _tools(self, edits) -> dict:
         """What the page's edit tools offer: the F's to measure residuals under, the robust estimators (threshold,
@@ -419,7 +416,7 @@ def serve_clicks(path: Path, host: str = "127.0.0.1", web_port: int = 9090, blue
     server = PageServer(path, host, web_port, blueprint, editor, export_to, run).start()
     try:
         what = "; edit the matches with the tools at the top" if editor is not None else ""
-        what += ("; right-click a plot (or move the time cursor) to draw that pair" if run is not None else "")
+        what += f"; {run.hint}" if run is not None else ""
         hint = (f"click a point of either image for its epipolar lines{what}" if server.app.pairs or run is not None else
                 "click a point of a watched pair for its epipolar lines under the ground truth, the network at the time "
                 "cursor's step and the baseline" if server.app.watched else
