@@ -5,8 +5,9 @@
 
 Splits (recipes/paper/): ``honest`` trains on the City drives 0001, 0002, 0005 and tests on drive 0013,
 never seen; ``paper`` draws random frames of all four drives, 80 / 10 / 10 % (the paper's 1600 / 200 / 200),
-so test frames neighbour training frames.  Rows: the Siamese Base, REC, REC + POS, EPI, EPI + POS under FBN
-and ABS, the Single-stream REC + POS, 8-point, LMedS, RANSAC, MAGSAC++, PoseLib (all on SIFT matches), the
+so test frames neighbour training frames.  Rows: all 36 networks (Single-stream and Siamese; Base, Base + POS, EPI,
+EPI + POS, REC, REC + POS; ETR, FBN, ABS: each normalizes in the unrectified cameras' frame, ``model.norm_frame``, so
+ETR is defined), 8-point, LMedS, RANSAC, MAGSAC++, PoseLib (all on SIFT matches), the
 learned matches (XFeat, XFeat + LighterGlue, DISK + LightGlue; ``--learned``, where the learned extra is
 installed) with MAGSAC++ and PoseLib, the two constants that read no image (``ahead``: straight ahead; the
 mean ground-truth F of the training pairs, a fair prior since it saw no test label) and the ground truth.
@@ -51,8 +52,8 @@ PROJECT = Path(__file__).resolve().parents[1]
 RECIPES = {"honest": PROJECT / "recipes" / "paper" / "city_stereo.toml",
            "paper": PROJECT / "recipes" / "paper" / "city_stereo_paper_split.toml"}
 TEST_DRIVES = {"honest": ["2011_09_26_drive_0013"], "paper": None}  # None: the test part of the training drives
-VARIANTS = [f"siamese-{h}-{n}" for h in ("base", "rec", "rec-pos", "epi", "epi-pos") for n in ("fbn", "abs")]
-VARIANTS += ["single-rec-pos-fbn"]
+VARIANTS = [f"{a}-{h}-{n}" for a in ("siamese", "single") for h in ("base", "base-pos", "epi", "epi-pos", "rec", "rec-pos")
+            for n in ("etr", "fbn", "abs")]  # every network cell of the paper's table: 2 x 6 x 3
 CLASSICAL = ["8point", "lmeds", "ransac", "magsac", "poselib", "ahead"]
 # today's correspondence pipeline: learned matches (the learned extra, docs/matchers.md) + MAGSAC++ / PoseLib
 LEARNED = ["xfeat", "xfeat+lighterglue", "disk+lightglue"]

@@ -106,19 +106,21 @@ def test_a_few_steps_lower_the_loss(tmp_path):
 
 
 def _etr_pairs(n: int, seed: int = 0) -> TensorPairs:
-    """Targets ETR can learn: random rank-2 F with F33 = 1 in the loss's conditioned frame (forward motions have
-    F33 ~ 0 there, so their ETR targets are in the thousands and 8 steps barely move the loss), mapped to pixels."""
-    from fviz.geometry import enforce_rank2, normalize
-    from fviz.models.heads import conditioning_matrix
+    """Targets where ETR is defined: sideways (stereo-like) motions whose F33 carries most of ||F|| in input pixels,
+    as in KITTI's unrectified cameras (forward motion has F33 ~ 0, where ETR's sign is a coin toss), ETR-normalized."""
+    from fviz.geometry import fundamental_from_motion, normalize
 
     g = np.random.default_rng(seed)
     H, W = TINY_MODEL["input_size"]
-    T = conditioning_matrix((H, W), dtype=torch.float64).numpy()
+    K = np.array([[0.6 * W, 0, (W - 1) / 2], [0, 0.6 * W, (H - 1) / 2], [0, 0, 1]])
     Fs = []
     for _ in range(n):
-        F = g.normal(0, 0.5, (3, 3))
-        F[2, 2] = 1.0
-        Fs.append(normalize(T.T @ enforce_rank2(F) @ T, "etr"))
+        a = g.normal(0, 0.05, 3)
+        a[0] = 0.1 + abs(a[0])  # a tilt about x: the rows of a and b differ, F33 != 0
+        U, _, Vt = np.linalg.svd(np.array([[1, -a[2], a[1]], [a[2], 1, -a[0]], [-a[1], a[0], 1]]))
+        F = fundamental_from_motion(K, K, U @ Vt, np.array([-1.0, g.normal(0, 0.1), g.normal(0, 0.1)]))
+        assert abs(normalize(F, "fbn")[2, 2]) > 0.5
+        Fs.append(normalize(F, "etr"))
     imgs = torch.from_numpy(g.random((2, n, 1, H, W)).astype(np.float32))
     return TensorPairs(imgs[0], imgs[1], torch.from_numpy(np.stack(Fs)).float())
 

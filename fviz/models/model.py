@@ -8,7 +8,9 @@ is normalized by the chosen layer (etr / fbn / abs).  :func:`fviz.models.predict
 the pixels of the original images.
 
 Pipeline: backbone (:mod:`.backbones`) -> location-aware pooling (:mod:`.pooling`) -> flatten ->
-head (:mod:`.heads`) -> normalization (:mod:`.normalization`).
+head (:mod:`.heads`) -> normalization (:mod:`.normalization`), in the input's pixels or, with ``norm_frame``, in
+another frame (a raw KITTI drive's unrectified cameras, where rectified stereo's F33 != 0 and ETR is defined; the
+output stays in input pixels, only its scale and sign come from that frame).
 
 Variants (``VARIANTS``, 36 names ``{arch}-{head}[-pos]-{norm}``): 2 archs (single, siamese) x the
 paper's six heads {Base, POS, EPI, EPI+POS, REC, REC+POS} = {base, base-pos, epi, epi-pos, rec,
@@ -63,7 +65,7 @@ from fviz.errors import FvizError
 from fviz.geometry.fundamental import NORMS
 from fviz.models.backbones import make_backbone
 from fviz.models.heads import make_head
-from fviz.models.normalization import make_norm
+from fviz.models.normalization import make_norm, normalize_in_frame
 from fviz.models.pooling import LocationAwarePool
 
 ARCHS = ("single", "siamese")
@@ -118,9 +120,16 @@ class FNetConfig:
     dropout: float = 0.5
     conditioned: bool = True
     ucn_channels: tuple[int, int, int] = (32, 64, 64)
+    # The frame the norm layer normalizes in: () the model input's own pixels; else 18 floats, U_a then U_b row-major
+    # (x' = U x, model-input pixels -> that frame), e.g. the unrectified cameras at the input's scale, where a rectified
+    # stereo pair's F33 != 0 and ETR is defined (fviz.train.splits.unrectified_frame). The output stays in input pixels.
+    norm_frame: tuple[float, ...] = ()
 
     def __post_init__(self):
         object.__setattr__(self, "input_hw", (int(self.input_hw[0]), int(self.input_hw[1])))
+        object.__setattr__(self, "norm_frame", tuple(float(v) for v in self.norm_frame))
+        if len(self.norm_frame) not in (0, 18):
+            raise FvizError(f"model norm_frame must hold 18 numbers (U_a, U_b row-major) or none, got {len(self.norm_frame)}")
         object.__setattr__(self, "pool_grid", (int(self.pool_grid[0]), int(self.pool_grid[1])))
         object.__setattr__(self, "ucn_channels", tuple(int(c) for c in self.ucn_channels))
         parse_variant(self.variant)  # validates arch / head / norm
@@ -177,17 +186,20 @@ class FNet(nn.Module):
         dropout: float = 0.5,
         conditioned: bool = True,
         ucn_channels: tuple[int, int, int] = (32, 64, 64),
+        norm_frame: tuple[float, ...] = (),
     ):
         super().__init__()
         self.config = FNetConfig(
             arch=arch, head=head, pos=pos, norm=norm, input_hw=tuple(input_hw), width=width, pool_grid=tuple(pool_grid),
-            hidden=hidden, dropout=dropout, conditioned=conditioned, ucn_channels=tuple(ucn_channels),
+            hidden=hidden, dropout=dropout, conditioned=conditioned, ucn_channels=tuple(ucn_channels), norm_frame=tuple(norm_frame),
         )
         c = self.config
         self.backbone = make_backbone(c.arch, c.width, c.ucn_channels)
         self.pool = LocationAwarePool(c.pool_grid, c.pos)
         self.head = make_head(c.head, self.pool.out_features(self.backbone.out_channels), c.input_hw, c.hidden, c.dropout, c.conditioned)
         self.norm = make_norm(c.norm)
+        frame = torch.tensor(c.norm_frame or [0.0] * 18, dtype=torch.float64).reshape(2, 3, 3)
+        self.register_buffer("norm_frame", frame, persistent=False)  # not in the state: rebuilt from the config
 
     @classmethod
     def from_config(cls, config: FNetConfig | dict) -> FNet:
@@ -235,7 +247,11 @@ class FNet(nn.Module):
 
     def _normalized(self, F: torch.Tensor, strict_norm: bool | None) -> torch.Tensor:
         with torch.autocast(device_type=F.device.type, enabled=False):
-            return self.norm(F.float(), strict=strict_norm)
+            if not self.config.norm_frame:
+                return self.norm(F.float(), strict=strict_norm)
+            strict = (not self.training) if strict_norm is None else strict_norm
+            frame = (self.norm_frame[0].float(), self.norm_frame[1].float())
+            return normalize_in_frame(F.float(), self.config.norm, frame, strict)
 
 
 def count_parameters(model: nn.Module) -> int:

@@ -19,6 +19,10 @@ nearly so).  What the layer does there depends on ``strict``:
 
 FBN and ABS guard their denominators with a tiny absolute floor (an all-zero F stays zero).
 All three compute in float32 (or float64 when given float64), also under autocast.
+
+:func:`normalize_in_frame` normalizes F as it reads in another pixel frame (x' = U x per image) and maps it back: the
+scale and sign are the other frame's. Rectified stereo has F33 = 0, so ETR is undefined in its own pixels; in the
+unrectified cameras' pixels F33 carries most of ||F|| and ETR is defined (``FNetConfig.norm_frame``).
 """
 
 from __future__ import annotations
@@ -67,6 +71,20 @@ def normalize_f(F: torch.Tensor, norm: str, strict: bool = True) -> torch.Tensor
         den = _signed_one(p) * p.abs().clamp_min(_TINY)
         return F / den[..., None, None]
     raise ValueError(f"unknown norm {norm!r}: choose one of {', '.join(NORMS)}")
+
+
+def normalize_in_frame(F: torch.Tensor, norm: str, frame: tuple[torch.Tensor, torch.Tensor] | None, strict: bool = True
+                       ) -> torch.Tensor:
+    """F normalized in the frame x' = U_a x_a, x' = U_b x_b and mapped back: U_b^T n(U_b^-T F U_a^-1) U_a, i.e. F
+    times the scale (and sign) the norm gives it there.  ``frame`` = (U_a, U_b), (3, 3) each; None: F's own frame.
+    (..., 3, 3) -> (..., 3, 3)."""
+    if frame is None:
+        return normalize_f(F, norm, strict)
+    if not F.dtype.is_floating_point or F.dtype in (torch.float16, torch.bfloat16):
+        F = F.float()
+    U_a, U_b = (U.to(F.dtype) for U in frame)
+    G = torch.linalg.inv(U_b).transpose(-1, -2) @ F @ torch.linalg.inv(U_a)
+    return U_b.transpose(-1, -2) @ normalize_f(G, norm, strict) @ U_a
 
 
 class FNorm(nn.Module):

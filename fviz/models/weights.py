@@ -111,7 +111,8 @@ def _describe(config: dict) -> str:
     except (KeyError, FvizError):
         name = "unknown variant"
     hw, grid = config.get("input_hw") or ("?", "?"), config.get("pool_grid") or ("?", "?")
-    return f"{name} (width {config.get('width')}, hidden {config.get('hidden')}, input {hw[0]}x{hw[1]}, pool {grid[0]}x{grid[1]})"
+    frame = ", normalized in a calibrated frame" if config.get("norm_frame") else ""
+    return f"{name} (width {config.get('width')}, hidden {config.get('hidden')}, input {hw[0]}x{hw[1]}, pool {grid[0]}x{grid[1]}{frame})"
 
 
 def _state_mismatch(theirs: dict, ours: dict) -> str:

@@ -44,14 +44,21 @@ from fviz.train.recipe import scene_config, synthetic_api
 MAX_CACHED_FRAMES = 4000  # decoded KITTI frames kept per process (~1.9 GB at 1242 x 375)
 
 
-def normalize_target(F: np.ndarray, norm: str, what: str) -> np.ndarray:
-    """numpy normalize with a message naming the pair when ETR is undefined."""
+def normalize_target(F: np.ndarray, norm: str, what: str, frame: tuple[float, ...] = ()) -> np.ndarray:
+    """numpy normalize with a message naming the pair when ETR is undefined.  ``frame``: the model's
+    ``norm_frame`` (18 floats, U_a and U_b): normalized there, as the network's layer does
+    (:func:`fviz.models.normalization.normalize_in_frame`)."""
     try:
-        return normalize(F, norm)
+        if not frame:
+            return normalize(F, norm)
+        from fviz.models.normalization import normalize_in_frame
+
+        U = torch.tensor(frame, dtype=torch.float64).reshape(2, 3, 3)
+        return normalize_in_frame(torch.from_numpy(np.asarray(F, np.float64)), norm, (U[0], U[1])).numpy()
     except NormalizationError:
         raise FvizError(
             f"{what}: ETR normalization is undefined for its ground-truth F (F33 ~ 0, e.g. rectified stereo); "
-            "train an fbn or abs variant on these pairs, or use temporal pairs"
+            "train an fbn or abs variant on these pairs, use temporal pairs, or (raw stereo) model.norm_frame = 'unrectified'"
         ) from None
 
 
@@ -213,10 +220,11 @@ class KittiPairs(torch.utils.data.Dataset):
     """
 
     def __init__(self, items: Sequence[KittiItem], input_hw: tuple[int, int], norm: str,
-                 augment: Augment = Augment(), seed: int = 0):
+                 augment: Augment = Augment(), seed: int = 0, frame: tuple[float, ...] = ()):
         self.items = list(items)
         self.input_hw = (int(input_hw[0]), int(input_hw[1]))
         self.norm = norm
+        self.frame = tuple(frame)  # the model's norm_frame: targets normalized where it normalizes
         self.augment = augment
         self.seed = int(seed)
         self._open: dict = {}
@@ -268,7 +276,7 @@ class KittiPairs(torch.utils.data.Dataset):
             image_a, image_b, F = image_b, image_a, F.T
         aug = self.augment if rng is not None else Augment()
         a, b, F_small = augmented_pair(image_a, image_b, F, self.input_hw, aug, rng or np.random.default_rng(0))
-        F_t = normalize_target(F_small, self.norm, item.label)
+        F_t = normalize_target(F_small, self.norm, item.label, self.frame)
         return a, b, F_t.astype(np.float32)
 
     def __getitem__(self, idx):

@@ -134,6 +134,7 @@ def train(
     Raises FvizError for bad input and :class:`TrainingDiverged` when the loss becomes NaN.
     """
     from fviz.models.model import FNet
+    from fviz.train.splits import network_config
 
     t_start = time.perf_counter()
     if not isinstance(recipe, Recipe):
@@ -149,7 +150,7 @@ def train(
     if t.threads:
         torch.set_num_threads(t.threads)
     torch.manual_seed(t.seed + rank)
-    model = FNet.from_config(recipe.fnet_config()).to(device)
+    model = FNet.from_config(network_config(recipe)).to(device)
     opt = torch.optim.Adam(model.parameters(), lr=t.lr, weight_decay=t.weight_decay)
     amp_dtype = autocast_dtype(t.amp, device)
     scaler = torch.amp.GradScaler("cuda", enabled=amp_dtype == torch.float16)

@@ -12,6 +12,8 @@ plateau (validation loss 0.357, f_dist 1.03, the network collapsed to F ~ e3 e3^
 conditioned one went below the constant straight-ahead F (median epipolar distance 1.34 px vs 1.50 px).
 In pixels the entries of F differ by (W / 2)^2 and the last row and column dominate the loss.
 (The authors' public code builds K^-1 without the principal point, in effect a centred frame too.)
+ETR is re-normalized there by the Frobenius norm: in a centred frame F33 = c_b^T F c_a (the centres' residual), ~0
+for stereo and forward motion, so dividing by it would weigh a pair by 1 / that residual; the sign ETR fixed is kept.
 
 :func:`sed_loss` (``train.sed_weight``) and validation (:mod:`fviz.train.validation`) measure F on points
 drawn on the target's geometry (:func:`sample_points_on_geometry`).
@@ -27,7 +29,10 @@ def _to_conditioned(F: torch.Tensor, input_hw: tuple[int, int], norm: str) -> to
     from fviz.models.normalization import normalize_f
 
     T_inv = torch.linalg.inv(conditioning_matrix(input_hw, dtype=F.dtype, device=F.device))
-    return normalize_f(T_inv.transpose(0, 1) @ F @ T_inv, norm, strict=False)
+    G = T_inv.transpose(0, 1) @ F @ T_inv
+    if norm == "etr":  # keep ETR's sign, measure the direction
+        return G / G.flatten(-2).norm(dim=-1).clamp_min(1e-12)[..., None, None]
+    return normalize_f(G, norm, strict=False)
 
 
 def f_loss(F_pred: torch.Tensor, F_t: torch.Tensor, norm: str, l1_weight: float = 1.0, l2_weight: float = 1.0,

@@ -5,7 +5,7 @@ A recipe has three tables, every key optional (defaults below):
     base = "kitti_base.toml"        # optional: inherit another recipe (path relative to this file)
     description = "..."             # optional free text
 
-    [model]   variant, input_size, width, pool_grid, hidden, dropout, conditioned
+    [model]   variant, input_size, width, pool_grid, hidden, dropout, conditioned, norm_frame
     [data]    source, root, sequences, drives, val_sequences, kind, steps, cams, frames, frame_stride,
               val_fraction, train_size, val_size, val_points, cache, synthetic = { SceneConfig fields }
     [train]   batch_size, lr, schedule, warmup_steps, weight_decay, epochs, max_steps, l1_weight, l2_weight, loss_frame,
@@ -70,6 +70,9 @@ class ModelSection:
     hidden: int = field(default=256, metadata={"min": 1})
     dropout: float = field(default=0.5, metadata={"min": 0.0, "max": 0.99})
     conditioned: bool = True
+    # Where the norm layer (and the targets) normalize F: "input", the model input's pixels; "unrectified", a raw
+    # drive's unrectified cameras (stereo only), where ETR is defined (fviz.train.splits.unrectified_frame).
+    norm_frame: str = field(default="input", metadata=_choices("input", "unrectified"))
 
 
 @dataclass
@@ -179,14 +182,15 @@ class Recipe:
         _check_layer(d, origin, allow_variants=False)
         return _build(d, path=str(path or ""), origin=origin)
 
-    def fnet_config(self):
-        """The :class:`fviz.models.FNetConfig` of this recipe's model."""
+    def fnet_config(self, norm_frame: tuple[float, ...] = ()):
+        """The :class:`fviz.models.FNetConfig` of this recipe's model; ``norm_frame`` read from the data
+        (``model.norm_frame = "unrectified"``: :func:`fviz.train.splits.network_config`)."""
         from fviz.models.model import FNetConfig
 
         m = self.model
         return FNetConfig.from_variant(
             m.variant, input_hw=tuple(m.input_size), width=m.width, pool_grid=tuple(m.pool_grid),
-            hidden=m.hidden, dropout=m.dropout, conditioned=m.conditioned,
+            hidden=m.hidden, dropout=m.dropout, conditioned=m.conditioned, norm_frame=tuple(norm_frame),
         )
 
     @property

@@ -190,10 +190,11 @@ def make_datasets(recipe, render_device: str | torch.device = "cpu") -> tuple[to
         scene_config(hw, d.synthetic)  # fail early on unknown SceneConfig fields
         tr, va = synthetic_seeds(recipe.train.seed, d.train_size, d.val_size)
         return (SyntheticPairs(tr, hw, norm, d.synthetic, render_device), SyntheticPairs(va, hw, norm, d.synthetic, render_device))
-    if norm == "etr" and "stereo" in recipe.kinds:
+    frame = unrectified_frame(recipe) if recipe.model.norm_frame == "unrectified" else ()
+    if norm == "etr" and "stereo" in recipe.kinds and not frame:
         raise FvizError(
             f"{recipe.model.variant}: ETR normalization is undefined for rectified stereo pairs (F33 = 0); "
-            "train an fbn or abs variant on them, or use temporal pairs"
+            "train an fbn or abs variant on them, use temporal pairs, or (raw drives) set model.norm_frame = 'unrectified'"
         )
     if not d.root and not d.roots:
         raise FvizError(f"data.root must name the KITTI dataset root for data.source {d.source!r}")
@@ -229,4 +230,45 @@ def make_datasets(recipe, render_device: str | torch.device = "cpu") -> tuple[to
         raise FvizError("data: no training pairs left after the validation split"
                         + (" and the ground-truth filter" if d.max_gt_sed_px else ""))
     augment = Augment(d.augment_swap, d.augment_flip, d.augment_crop, d.augment_photometric)
-    return KittiPairs(train_items, hw, norm, augment, recipe.train.seed), KittiPairs(val_items, hw, norm)
+    return KittiPairs(train_items, hw, norm, augment, recipe.train.seed, frame), KittiPairs(val_items, hw, norm, frame=frame)
+
+
+def network_config(recipe):
+    """The :class:`fviz.models.FNetConfig` a recipe trains, its ``norm_frame`` read from the drives' calibration."""
+    return recipe.fnet_config(unrectified_frame(recipe) if recipe.model.norm_frame == "unrectified" else ())
+
+
+def unrectified_frame(recipe) -> tuple[float, ...]:
+    """``model.norm_frame = "unrectified"``: the frame the network normalizes F in (``FNetConfig.norm_frame``), 18
+    floats, U_a then U_b row-major: rectified model-input pixels -> the unrectified cameras' pixels at the input's
+    scale, U = S_u H S_r^-1 (H of :func:`fviz.data.kitti.raw_cameras`, S the resize of each image to the input).
+    There a rectified stereo pair's F33 is most of ||F|| (the cameras' principal points differ by ~12 px in y), so ETR
+    is defined: the paper's ground-truth frame. Pairs read the other way (b -> a) keep the same U's: F^T there is
+    ~ -F, still well away from F33 = 0. Every drive must share one calibration."""
+    from fviz.data.kitti import raw_cameras
+    from fviz.models.predict import scale_matrix
+
+    d = recipe.data
+    if d.source != "kitti-raw" or recipe.kinds != ["stereo"]:
+        raise FvizError("model.norm_frame = 'unrectified' needs data.source = 'kitti-raw' and stereo pairs only "
+                        f"(data.kinds = ['stereo']), got {d.source!r} and {recipe.kinds}")
+    cams = list(d.cameras or recipe.cams)
+    if len(cams) != 2:
+        raise FvizError(f"model.norm_frame = 'unrectified' needs two cameras (data.cameras), got {cams}")
+    roots = [str(resolve_root(r)) for r in [d.root, *d.roots] if r]
+    wh = (recipe.input_hw[1], recipe.input_hw[0])
+    frames = {}
+    for name in [*d.drives, *d.val_sequences]:
+        _, ds = open_named(roots, name)
+        cameras = raw_cameras(ds.calib_path)
+        missing = [c for c in cams if c not in cameras]
+        if missing:
+            raise FvizError(f"{ds.calib_path}: no unrectified camera {missing[0]} (K_0{missing[0]}) for model.norm_frame")
+        U = [scale_matrix(cameras[c].size, wh) @ cameras[c].H @ np.linalg.inv(scale_matrix(cameras[c].rect_size, wh)) for c in cams]
+        frames[name] = np.concatenate([u.ravel() for u in U])
+    first_name, first = next(iter(frames.items()))
+    other = [n for n, f in frames.items() if not np.allclose(f, first, rtol=1e-9, atol=1e-12)]
+    if other:
+        raise FvizError(f"model.norm_frame = 'unrectified': {', '.join(other)} have another calibration than {first_name}; "
+                        "train drives of one calibration (one date) together")
+    return tuple(float(v) for v in first)

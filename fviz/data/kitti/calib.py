@@ -87,7 +87,7 @@ class RawCamera:
 
     K: (3, 3) intrinsics; R, T: camera 0 -> this camera (X_cam = R X_0 + T, metres); size: (w, h) of the
     unrectified image; H: (3, 3) rectified pixel -> unrectified (undistorted) pixel, K R_rect^T P_rect[:, :3]^-1
-    (a rotation about the camera centre, so exact at every depth).
+    (a rotation about the camera centre, so exact at every depth); rect_size: (w, h) of the rectified image.
     """
 
     K: np.ndarray
@@ -95,6 +95,7 @@ class RawCamera:
     T: np.ndarray
     size: tuple[int, int]
     H: np.ndarray
+    rect_size: tuple[int, int]
 
 
 def raw_cameras(calib: Path) -> dict[int, RawCamera]:
@@ -111,7 +112,8 @@ def raw_cameras(calib: Path) -> dict[int, RawCamera]:
         w, h = _entry(values, f"S_0{cam}", 2, calib)
         R_rect = _entry(values, f"R_rect_0{cam}", 9, calib).reshape(3, 3)
         P_rect = _projection(values, f"P_rect_0{cam}", calib)
-        cams[cam] = RawCamera(K, R, T, (int(w), int(h)), K @ R_rect.T @ np.linalg.inv(P_rect[:, :3]))
+        rw, rh = _entry(values, f"S_rect_0{cam}", 2, calib)
+        cams[cam] = RawCamera(K, R, T, (int(w), int(h)), K @ R_rect.T @ np.linalg.inv(P_rect[:, :3]), (int(rw), int(rh)))
     if 0 not in cams:
         raise FvizError(f"calibration {calib}: no 'K_00' entry (not a raw drive's calib_cam_to_cam.txt)")
     return cams
