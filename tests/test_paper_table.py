@@ -49,7 +49,7 @@ def test_the_table_script_trains_evaluates_and_shows_the_constant(kitti_root, tm
     sets = [f"data.root={kitti_root}/raw", "data.roots=[]", 'data.drives=["2011_09_26_drive_0001"]',
             "data.val_fraction=0.2", *TINY]
     cmd = [sys.executable, str(PROJECT / "benchmarks" / "paper_table1.py"), "--split", "honest", "--variants",
-           "siamese-rec-fbn", "--steps", "3", "--out", str(tmp_path), "--test-drive", "2011_09_26_drive_0002",
+           "siamese-rec-fbn,single-base-etr", "--steps", "3", "--out", str(tmp_path), "--test-drive", "2011_09_26_drive_0002",
            "--learned", "xfeat",  # the cheapest learned matcher: DISK + LightGlue on CPU would take most of the test
            *[a for s in sets for a in ("--set", s)]]
     r = subprocess.run(cmd, capture_output=True, text=True, timeout=900, cwd=PROJECT)
@@ -62,6 +62,8 @@ def test_the_table_script_trains_evaluates_and_shows_the_constant(kitti_root, tm
     # the network's FBN cells in every reading, none under ABS (no ABS model), the paper's figures beside it
     assert all(table["FBN", "Siamese REC"][1:5]) and table["ABS", "Siamese REC"][1:5] == ["", "", "", ""]
     assert table["FBN", "Siamese REC"][0] == "0.92 / 1.11"
+    # an ETR network, trained in the unrectified cameras' frame (model.norm_frame): its cells under every reading
+    assert all(table["ETR", "Single-stream Base"][1:5]) and table["ETR", "Single-stream Base"][0] == "4.43 / 34.3"
     # the ground truth: ETR undefined on rectified stereo (F33 = 0), defined under both readings of the paper's frame,
     # where the three norms nearly agree (the paper's 0.05 / 0.004 in every block)
     assert table["ETR", "Ground-truth"][4] == "undefined" and table["ETR", "Ground-truth"][6:8] == ["1 / 1", "1 / 1"]
