@@ -126,13 +126,15 @@ def test_straight_ahead_input_f_is_forward_motion_with_the_synthetic_camera():
 @pytest.mark.parametrize("dtype", DTYPES)
 def test_conditioned_frame_is_the_numpy_transfer_and_normalization(norm, dtype):
     """f_loss's conditioned frame: F in coordinates x_n = T x is T^-T F T^-1 (fviz.geometry.transfer_fundamental),
-    then normalized as the numpy normalize does (F33 far from 0: ETR's training clamp does not act)."""
+    then normalized as the numpy normalize does; ETR by the Frobenius norm with its sign kept (F33 there is the
+    centres' residual, ~0 for stereo and forward motion)."""
     rng = np.random.default_rng(4)
     Fs = np.stack([c[4] for c in _cameras(rng)])
     T = conditioning_matrix(HW, dtype=torch.float64).numpy()
     H, W = HW
     assert np.allclose(T @ [0.0, 0.0, 1.0], [-(W - 1) / W, -(H - 1) / W, 1.0])  # the top-left pixel centre, long side W
-    want = normalize(transfer_fundamental(Fs, T, T), norm)
+    G = transfer_fundamental(Fs, T, T)
+    want = G / np.linalg.norm(G, axis=(1, 2), keepdims=True) if norm == "etr" else normalize(G, norm)
     got = _to_conditioned(torch.from_numpy(Fs).to(dtype), HW, norm).double().numpy()
     np.testing.assert_allclose(got, want, **TOL[dtype])
 
