@@ -251,11 +251,12 @@ def test_learning_rate_schedule():
     assert lr_at(50, 110, TrainSection(lr=0.3)) == 0.3
 
 
-def test_loss_is_sign_invariant_except_etr():
+def test_loss_is_sign_invariant_except_etr_in_pixels():
     F = torch.randn(3, 3, 3)
     for norm in ("fbn", "abs"):
         assert float(f_loss(F, -F, norm)) == pytest.approx(0.0)
-    assert float(f_loss(F, -F, "etr")) > 0
+    assert float(f_loss(F, -F, "etr")) > 0  # the paper's literal loss: F / F33 fixed the sign
+    assert float(f_loss(F, -F, "etr", frame="conditioned", input_hw=(32, 96))) == pytest.approx(0.0, abs=1e-6)
     cond = f_loss(F, F * 1.0, "fbn", frame="conditioned", input_hw=(32, 96))
     assert float(cond) == pytest.approx(0.0, abs=1e-6)
 

@@ -3,7 +3,7 @@
 Loss (paper, Sec. 4): L1 + L2 between the predicted and the target F, both normalized by the
 model's layer, per pair ``l1_weight * mean|F - F_t| + l2_weight * mean (F - F_t)^2``.  F is only
 defined up to sign: for fbn and abs the loss of a pair is the smaller of the losses of F and -F
-(ETR fixes the sign itself).  ``loss_frame = "conditioned"`` (the default) compares the matrices
+(in pixels ETR fixes the sign itself: F / F33 is the same for F and -F).  ``loss_frame = "conditioned"`` (the default) compares the matrices
 after mapping both to coordinates where the image spans [-1, 1] along its long side
 (:func:`fviz.models.heads.conditioning_matrix`) and normalizing them again; ``"pixel"`` compares
 them in model-input pixels, the literal reading of the paper.  Measured on synthetic scenes (48 x 160,
@@ -13,7 +13,11 @@ conditioned one went below the constant straight-ahead F (median epipolar distan
 In pixels the entries of F differ by (W / 2)^2 and the last row and column dominate the loss.
 (The authors' public code builds K^-1 without the principal point, in effect a centred frame too.)
 ETR is re-normalized there by the Frobenius norm: in a centred frame F33 = c_b^T F c_a (the centres' residual), ~0
-for stereo and forward motion, so dividing by it would weigh a pair by 1 / that residual; the sign ETR fixed is kept.
+for stereo and forward motion, so dividing by it would weigh a pair by 1 / that residual.  There the loss takes the
+better of +-F for ETR too: with the sign ETR gave it, the loss jumped where the network's F33 (in the ETR frame)
+crosses 0, and 5 of 12 ETR networks of Table 1 stuck on the wrong side (median SED 2,200-394,000 px, see
+docs/training.md); the minima are the same (F / F33 is).  So in this frame ETR and FBN train on one loss and differ
+in the scale of their output.
 
 :func:`sed_loss` (``train.sed_weight``) and validation (:mod:`fviz.train.validation`) measure F on points
 drawn on the target's geometry (:func:`sample_points_on_geometry`).
@@ -37,7 +41,7 @@ def _to_conditioned(F: torch.Tensor, input_hw: tuple[int, int], norm: str) -> to
 
 def f_loss(F_pred: torch.Tensor, F_t: torch.Tensor, norm: str, l1_weight: float = 1.0, l2_weight: float = 1.0,
            frame: str = "pixel", input_hw: tuple[int, int] | None = None) -> torch.Tensor:
-    """L1 + L2 between normalized matrices, sign-invariant for fbn/abs.  (B, 3, 3) x 2 -> scalar."""
+    """L1 + L2 between normalized matrices, sign-invariant but for ETR in pixels.  (B, 3, 3) x 2 -> scalar."""
     F_pred, F_t = F_pred.float(), F_t.float()
     if frame == "conditioned":
         F_pred, F_t = _to_conditioned(F_pred, input_hw, norm), _to_conditioned(F_t, input_hw, norm)
@@ -46,7 +50,7 @@ def f_loss(F_pred: torch.Tensor, F_t: torch.Tensor, norm: str, l1_weight: float 
         return l1_weight * d.abs().mean((-1, -2)) + l2_weight * d.square().mean((-1, -2))
 
     loss = per_pair(F_pred - F_t)
-    if norm != "etr":
+    if norm != "etr" or frame == "conditioned":
         loss = torch.minimum(loss, per_pair(F_pred + F_t))
     return loss.mean()
 
