@@ -211,7 +211,7 @@ def test_in_the_conditioned_frame_etr_and_fbn_train_on_one_loss():
         loss = f_loss(normalize_in_frame(F, norm, frame, strict=False), normalize_in_frame(F_t, norm, frame), norm,
                       frame="conditioned", input_hw=HW)
         loss.backward()
-        out[norm] = (float(loss), F.grad)
+        out[norm] = (float(loss.detach()), F.grad)
     assert out["etr"][0] == pytest.approx(out["fbn"][0], rel=1e-6)
     scale = float(out["fbn"][1].abs().max())  # f_loss computes in float32
     torch.testing.assert_close(out["etr"][1], out["fbn"][1], rtol=1e-4, atol=1e-5 * scale)
